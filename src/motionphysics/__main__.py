@@ -1,0 +1,5 @@
+import sys
+
+from motionphysics.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""Subcommands of the ``motionphysics`` command line; see ``motionphysics.cli``."""

@@ -1,0 +1,60 @@
+"""Process-wide runtime setup: devices, threads, Warp initialisation and kernel cache.
+
+Nothing here runs at import time; call the functions. The Warp kernel cache lives in
+``$MOTIONPHYSICS_CACHE/warp`` (default ``~/.cache/motionphysics/warp``) because a cold
+compile of our kernels costs 12-16 s per module on CPU.
+"""
+
+from __future__ import annotations
+
+import os
+from functools import cache
+from pathlib import Path
+from typing import Literal
+
+from motionphysics.errors import UserInputError
+
+Device = Literal["cpu", "cuda"]
+
+
+def cache_dir() -> Path:
+    """Root of the project's on-disk caches (Warp kernels, downloaded-nothing)."""
+    root = os.environ.get("MOTIONPHYSICS_CACHE")
+    path = Path(root) if root else Path.home() / ".cache" / "motionphysics"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@cache
+def init_warp(quiet: bool = True):
+    """Initialise Warp once, with the kernel cache in :func:`cache_dir`. Returns ``warp``."""
+    import warp as wp
+
+    wp.config.kernel_cache_dir = str(cache_dir() / "warp")
+    wp.config.quiet = quiet
+    wp.init()
+    return wp
+
+
+def check_device(device: str) -> Device:
+    """Validate a ``--device`` value; ``cuda`` must actually be present."""
+    if device not in ("cpu", "cuda"):
+        raise UserInputError(f"--device: expected 'cpu' or 'cuda', got {device!r}")
+    if device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise UserInputError(
+                "--device cuda: no CUDA device is visible to PyTorch on this machine; use --device cpu"
+            )
+    return device  # type: ignore[return-value]
+
+
+def set_threads(n: int | None = None) -> int:
+    """Set torch's intra-op threads deliberately (default: all cores, at most 8)."""
+    import torch
+
+    if n is None:
+        n = min(os.cpu_count() or 1, 8)
+    torch.set_num_threads(max(1, int(n)))
+    return torch.get_num_threads()
