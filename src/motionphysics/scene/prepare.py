@@ -1,0 +1,476 @@
+"""From a loaded scene to what the simulator needs: ``prepare(...) -> SimScene``.
+
+Steps, in order (each documented at its function):
+
+1. transform: uniform ``scale``, then the ``rotate`` list in order, then ``translate``
+   (world frame). Rotation turns the quaternions and rotates SH bands 1-3 exactly.
+2. filter: drop splats with opacity < ``opacity_threshold``, then those outside ``crop``.
+3. anisotropy regularisation (PhysGaussian): raise the smallest scales so that
+   largest / smallest <= ``max_anisotropy``.
+4. domain: the given ``sim.domain`` (checked), or fitted around the particles and the
+   ground planes; ``dx = longest side / sim.grid``, nodes per axis ``ceil(side/dx)+1``.
+5. voxelise at ``dx`` on the simulation grid's cells, flood-fill from outside, and
+   (``fill: true``) put one invisible particle at the centre of every interior cell.
+6. particle volumes from the voxelisation (rule at :func:`_particle_volumes`).
+7. downsample to ``max_particles`` evenly in space (:func:`stratified_subset`); every
+   visible splat follows its nearest kept particle.
+
+Nothing here simulates or renders; this module must not import warp.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from motionphysics.config import SceneConfig, SimConfig
+from motionphysics.errors import UserInputError
+from motionphysics.scene.gaussians import GaussianScene, quat_multiply, rotmat_to_quat
+
+__all__ = [
+    "SimScene",
+    "prepare",
+    "transform_scene",
+    "rotation_matrix",
+    "regularise_anisotropy",
+    "fit_domain",
+    "voxelise",
+    "stratified_subset",
+    "PAD_CELLS",
+    "FILL_SEED",
+]
+
+PAD_CELLS = 3
+"""Particles end at least this many cells inside the domain (quadratic B-spline stencil
+plus the bounding-box wall layer)."""
+FILL_SEED = 0
+"""Seed of the deterministic subsampling (interior cap, particle downsampling)."""
+_CLOSE_CELLS = 1
+"""Gaps of up to 2 cells in a splat shell are bridged before the fill (morphological closing)."""
+_MAX_SAMPLE_HALF = 4
+"""Samples per splat axis in the voxelisation: at most 2*4+1 (bounds the work per splat)."""
+
+
+@dataclass
+class SimScene:
+    """A scene ready for MPM: visible splats, simulated particles, and the grid.
+
+    All tensors are float32 on CPU unless stated; world frame (z up) in metres.
+    """
+
+    splats: GaussianScene
+    """Visible splats after transform, filter, crop and anisotropy regularisation (N of them)."""
+    particles: torch.Tensor
+    """Simulated particle positions [m], shape (P, 3): visible-derived first, then interior fill."""
+    volumes: torch.Tensor
+    """Particle rest volumes [m^3], shape (P,); mass = density * volume."""
+    n_interior: int
+    """How many of the particles (the last ones) are invisible interior fill."""
+    splat_parent: torch.Tensor
+    """Index of the particle each splat follows, shape (N,), int64."""
+    splat_offset: torch.Tensor
+    """Rest offset splat mean - parent position [m], shape (N, 3)."""
+    domain_lo: torch.Tensor
+    """Position of grid node (0,0,0) [m], shape (3,)."""
+    domain_hi: torch.Tensor
+    """Position of the last grid node, ``domain_lo + (grid_dims - 1) * dx`` [m], shape (3,)."""
+    dx: float
+    """Grid spacing [m]."""
+    grid_dims: tuple[int, int, int]
+    """Grid nodes per axis (nx, ny, nz)."""
+    source_to_world: torch.Tensor
+    """The scene transform as a 4x4 float64 matrix: x_world = s R x_source + t (e.g. for
+    INRIA cameras, which live in the source frame)."""
+    total_volume: float
+    """Occupied volume of the voxelisation [m^3] (= volumes.sum() up to rounding)."""
+
+    @property
+    def n_particles(self) -> int:
+        return int(self.particles.shape[0])
+
+    @property
+    def n_visible(self) -> int:
+        """Particles that came from visible splats (the first ones)."""
+        return self.n_particles - self.n_interior
+
+
+# ---- 1. transform ------------------------------------------------------------------
+
+def rotation_matrix(axis: str, degrees: float) -> np.ndarray:
+    """Right-handed rotation by ``degrees`` about world ``axis`` ('x','y','z'), float64 (3,3)."""
+    a = math.radians(degrees)
+    c, s = math.cos(a), math.sin(a)
+    if axis == "x":
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    if axis == "y":
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    if axis == "z":
+        return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    raise UserInputError(f"scene.rotate: axis must be 'x', 'y' or 'z', got {axis!r}")
+
+
+def transform_scene(
+    scene: GaussianScene, scale: float = 1.0, rotate=(), translate=(0.0, 0.0, 0.0)
+) -> tuple[GaussianScene, np.ndarray]:
+    """Apply scale, then each rotation of ``rotate`` ([axis, degrees], in order), then translate.
+
+    Returns the transformed scene (same dtype) and the 4x4 float64 matrix of the transform.
+    Means and quaternions are computed in float64; SH bands >= 1 are rotated exactly.
+    """
+    r = np.eye(3)
+    for axis, deg in rotate:
+        r = rotation_matrix(axis, float(deg)) @ r
+    t = np.asarray(translate, dtype=np.float64)
+    dtype = scene.means.dtype
+    rt = torch.from_numpy(r)
+    means = scene.means.double() * float(scale) @ rt.T + torch.from_numpy(t)
+    out = GaussianScene(
+        means=means.to(dtype),
+        log_scales=scene.log_scales + math.log(scale),
+        quats=scene.quats.clone(),
+        logit_opacities=scene.logit_opacities.clone(),
+        sh=scene.sh.clone(),
+    )
+    if not np.allclose(r, np.eye(3), atol=0.0):
+        q_r = rotmat_to_quat(rt)  # unit, so |q_r ⊗ q| = |q| keeps the storage magnitude
+        out.quats = quat_multiply(q_r[None, :], scene.quats.double()).to(dtype)
+        from motionphysics.scene.sh import rotate_sh
+
+        out.sh = rotate_sh(scene.sh.double(), rt).to(scene.sh.dtype)
+    m = np.eye(4)
+    m[:3, :3] = float(scale) * r
+    m[:3, 3] = t
+    return out, m
+
+
+# ---- 3. anisotropy -------------------------------------------------------------------
+
+def regularise_anisotropy(scene: GaussianScene, max_ratio: float) -> GaussianScene:
+    """Raise scales below ``largest / max_ratio`` to that value (per splat), as PhysGaussian.
+
+    Only the smallest axes grow; the largest axis and the orientation are unchanged.
+    """
+    out = scene.clone()
+    floor = scene.log_scales.max(dim=1, keepdim=True).values - math.log(max_ratio)
+    out.log_scales = torch.maximum(scene.log_scales, floor)
+    return out
+
+
+# ---- 4. domain ------------------------------------------------------------------------
+
+def _get(bc, key, default=None):
+    return bc.get(key, default) if isinstance(bc, dict) else getattr(bc, key, default)
+
+
+def _grid_from_box(lo: np.ndarray, hi: np.ndarray, grid: int) -> tuple[float, tuple[int, int, int], np.ndarray]:
+    side = hi - lo
+    dx = float(side.max()) / grid
+    # The 1e-9 guard keeps the longest axis at exactly grid+1 nodes despite rounding.
+    dims = tuple(int(math.ceil(s / dx - 1e-9)) + 1 for s in side)
+    return dx, dims, lo + (np.asarray(dims) - 1) * dx
+
+
+def fit_domain(
+    points: np.ndarray, grid: int, boundary_conditions=(), fallback_extent: float = 1e-3
+) -> tuple[np.ndarray, float, tuple[int, int, int], np.ndarray]:
+    """Fitted domain around particles ``points (P,3)`` [m] and the ground planes.
+
+    Bounding box of the points, grown by 0.5 x its largest extent on every side, then
+    extended to contain, for every ``surface_collider``, the point of its plane nearest
+    to the box centre (so a ground plane below a floating object is inside), then padded
+    by PAD_CELLS cells on every side. With the padding included, ``dx = longest side /
+    grid`` (so ``dx = longest unpadded side / (grid - 2*PAD_CELLS)``). When the points'
+    extent is negligible (one splat) ``fallback_extent`` [m] stands in for it.
+    Returns (domain_lo (3,), dx, grid_dims, domain_hi (3,)).
+    """
+    lo = points.min(axis=0).astype(np.float64)
+    hi = points.max(axis=0).astype(np.float64)
+    ext = float((hi - lo).max())
+    if not ext >= 1e-6 * max(fallback_extent, float(np.abs(points).max())):
+        ext = fallback_extent  # a single point (or all at one place): size from the splats
+    centre = 0.5 * (lo + hi)
+    lo = lo - 0.5 * ext
+    hi = hi + 0.5 * ext
+    for bc in boundary_conditions:
+        if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
+            continue
+        p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
+        n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
+        nn = np.linalg.norm(n)
+        if not nn > 0:
+            raise UserInputError("boundary_conditions: surface_collider normal must be non-zero")
+        n = n / nn
+        q = centre - np.dot(centre - p, n) * n  # the plane's point nearest the object
+        lo = np.minimum(lo, q)
+        hi = np.maximum(hi, q)
+    dx = float((hi - lo).max()) / (grid - 2 * PAD_CELLS)
+    lo = lo - PAD_CELLS * dx
+    hi = hi + PAD_CELLS * dx
+    dx, dims, hi = _grid_from_box(lo, hi, grid)
+    return lo, dx, dims, hi
+
+
+def _given_domain(points: np.ndarray, domain, grid: int):
+    lo = np.asarray(domain[0], dtype=np.float64)
+    hi = np.asarray(domain[1], dtype=np.float64)
+    dx, dims, hi_nodes = _grid_from_box(lo, hi, grid)
+    pmin, pmax = points.min(axis=0), points.max(axis=0)
+    margin = PAD_CELLS * dx
+    if (pmin < lo + margin).any() or (pmax > hi_nodes - margin).any():
+        raise UserInputError(
+            f"sim.domain: the scene's particles span {np.round(pmin, 4).tolist()} to "
+            f"{np.round(pmax, 4).tolist()} m but must lie at least {PAD_CELLS} cells "
+            f"({margin:.4g} m) inside the domain {np.round(lo, 4).tolist()} to {np.round(hi, 4).tolist()}; "
+            "enlarge sim.domain or set it to null"
+        )
+    return lo, dx, dims, hi_nodes
+
+
+# ---- 5. voxelisation and fill -------------------------------------------------------------
+
+def voxelise(
+    splats: GaussianScene, origin: np.ndarray, dx: float, shape: tuple[int, int, int]
+) -> np.ndarray:
+    """Cells occupied by splats, shape ``shape`` bool; cell (i,j,k) spans origin + [i,i+1)*dx.
+
+    Each splat marks the cells of points sampled over its one-sigma box (centre ± sigma
+    along each of its axes, sigma capped at 4 dx) at spacing <= dx/2, so a surface of
+    splats whose neighbours overlap at one sigma becomes a closed layer of cells (no gaps
+    for a 6-connected flood fill). The per-splat sample count is bounded (<= 9 per axis):
+    no hang on huge or degenerate covariances.
+    """
+    occ = np.zeros(shape, dtype=bool)
+    if splats.num == 0:
+        return occ
+    means = splats.means.double().numpy()
+    axes = splats.rotation_matrices().double().numpy()  # columns = axes, (N,3,3)
+    sig = np.minimum(splats.scales.double().numpy(), _MAX_SAMPLE_HALF * dx)  # (N,3), inf -> cap
+    sig = np.nan_to_num(sig, nan=0.0)
+    half = np.clip(np.ceil(sig / (0.5 * dx)), 0, _MAX_SAMPLE_HALF).astype(np.int64)  # (N,3)
+    dims = np.asarray(shape)
+    base = _MAX_SAMPLE_HALF + 1
+    keys = (half[:, 0] * base + half[:, 1]) * base + half[:, 2]
+    for key in np.unique(keys):
+        sel = np.nonzero(keys == key)[0]
+        h = half[sel[0]]
+        grids = [np.linspace(-1.0, 1.0, 2 * int(n) + 1) if n > 0 else np.zeros(1) for n in h]
+        u = np.stack(np.meshgrid(*grids, indexing="ij"), axis=-1).reshape(-1, 3)  # (S,3) in sigma units
+        # chunk so that the (n, S, 3) point array stays below ~3M points
+        step = max(1, 3_000_000 // len(u))
+        for c0 in range(0, len(sel), step):
+            idx = sel[c0:c0 + step]
+            local = u[None, :, :] * sig[idx, None, :]  # (n,S,3)
+            pts = means[idx, None, :] + np.einsum("nij,nsj->nsi", axes[idx], local)
+            cell = np.floor((pts.reshape(-1, 3) - origin) / dx).astype(np.int64)
+            ok = ((cell >= 0) & (cell < dims)).all(axis=1)
+            cell = cell[ok]
+            occ[cell[:, 0], cell[:, 1], cell[:, 2]] = True
+    return occ
+
+
+def _classify(occ: np.ndarray, close: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """``(interior, outside)`` cells of a box with occupied shell ``occ`` (bool, same shape).
+
+    The shell is first thickened by ``close`` cells (6-connected dilation), which bridges
+    gaps of up to ``2 * close`` cells between splats; the outside is the part of the free
+    space 6-connected to the box border. That outside is then grown back through free
+    cells by ``2 * close + 1`` steps (geodesic dilation), so the cells just outside the
+    shell (staircase pits of a digital surface) count as outside again and no fill
+    particle lands outside the object. Near a real gap the outside reaches in by at most
+    those few cells. Interior = free and not outside. The box must leave ``close + 1``
+    free cells around the shell.
+    """
+    from scipy import ndimage
+
+    ball = ndimage.generate_binary_structure(3, 1)
+    free = ~occ
+    thick = ndimage.binary_dilation(occ, ball, iterations=close) if close > 0 else occ
+    outside = ~ndimage.binary_fill_holes(thick, ball)
+    if close > 0:
+        outside = ndimage.binary_dilation(outside, ball, iterations=2 * close + 1, mask=free)
+    return free & ~outside, outside
+
+
+def _cell_weights(occ: np.ndarray, interior: np.ndarray, fill: bool) -> np.ndarray:
+    """Fraction of each cell's volume dx^3 that belongs to the object, float64 (same shape).
+
+    Occupied cells face-adjacent to a free cell (outside or interior) hold splat samples
+    of a surface layer and are cut by the surface: 1/2 (on average half of a cut cell
+    lies inside). Occupied cells surrounded by occupied cells (the body of a capture
+    whose splats fill the object) count 1. Interior cells count 1 when ``fill`` (they
+    get particles), else 0 (a hollow object).
+    """
+    from scipy import ndimage
+
+    ball = ndimage.generate_binary_structure(3, 1)
+    boundary = occ & ndimage.binary_dilation(~occ, ball, border_value=1)
+    w = np.where(occ, 1.0, 0.0)
+    w[boundary] = 0.5
+    if fill:
+        w[interior] = 1.0
+    return w
+
+
+def _particle_volumes(particles: np.ndarray, origin: np.ndarray, dx: float, weight: np.ndarray) -> np.ndarray:
+    """Rest volume of each particle [m^3], float64 (P,).
+
+    Rule: the object is the voxelisation, cell (i,j,k) holding ``weight[i,j,k] * dx^3``
+    (see :func:`_cell_weights`). Each cell's volume is shared equally by the particles
+    inside it; a cell without particles gives its volume to the particle nearest its
+    centre. So ``sum(volumes) = dx^3 * weight.sum()``.
+    """
+    from scipy.spatial import cKDTree
+
+    shape = np.asarray(weight.shape)
+    flat_w = weight.ravel() * dx**3
+    cell = np.clip(np.floor((particles - origin) / dx).astype(np.int64), 0, shape - 1)
+    flat = np.ravel_multi_index(cell.T, weight.shape)
+    count = np.bincount(flat, minlength=flat_w.size)
+    vol = flat_w[flat] / count[flat]
+    orphan = np.nonzero((flat_w > 0) & (count == 0))[0]
+    if orphan.size:
+        centres = origin + (np.stack(np.unravel_index(orphan, weight.shape), axis=1) + 0.5) * dx
+        _, nearest = cKDTree(particles).query(centres)
+        np.add.at(vol, nearest, flat_w[orphan])
+    return vol
+
+
+# ---- 7. downsampling ---------------------------------------------------------------------------
+
+def stratified_subset(points: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """Sorted indices of ``k`` of the ``points (P,3)``, spread evenly in space.
+
+    One random point per cube of the coarsest grid that still has at most ``k`` occupied
+    cubes (bisection on the cube size), topped up with random others. Unlike a plain
+    random subset, no region of the object (a beak, a thin tail) loses all its
+    particles, so splats never follow a far-away particle.
+    """
+    from motionphysics.scene.mesh import _cell_keys
+
+    p = len(points)
+    if k >= p:
+        return np.arange(p)
+    order = rng.permutation(p)  # the first point of a cube in this order is a random one
+    pts = points[order]
+    ext = float((points.max(0) - points.min(0)).max()) or 1.0
+    lo_h, hi_h = ext * 1e-6, ext * 2.0  # many cubes (> k, as k < p) ... one cube (<= k)
+    best = None
+    for _ in range(40):
+        h = math.sqrt(lo_h * hi_h)
+        _, first = np.unique(_cell_keys(pts, h), return_index=True)
+        if len(first) <= k:
+            hi_h, best = h, first
+            if len(first) >= 0.98 * k:
+                break
+        else:
+            lo_h = h
+    if best is None:  # pragma: no cover - hi_h = 2 x extent always gives one cube
+        best = np.zeros(1, dtype=np.int64)
+    chosen = np.zeros(p, dtype=bool)
+    chosen[best] = True
+    rest = np.nonzero(~chosen)[0]
+    chosen[rest[: k - len(best)]] = True  # rest is in random order already
+    return np.sort(order[chosen])
+
+
+# ---- the entry point -------------------------------------------------------------------------
+
+def prepare(
+    scene: GaussianScene,
+    scene_cfg: SceneConfig,
+    sim_cfg: SimConfig,
+    boundary_conditions: list | tuple = (),
+) -> SimScene:
+    """Transform, filter and regularise ``scene``; fill it, size the grid, downsample.
+
+    See the module docstring for the order. Raises UserInputError when nothing is left
+    after the opacity filter and crop, or when a given ``sim.domain`` does not hold the
+    particles with PAD_CELLS cells to spare.
+    """
+    origin_name = scene_cfg.source
+    scene.validate(origin_name)
+    splats, m = transform_scene(scene, scene_cfg.scale, scene_cfg.rotate, scene_cfg.translate)
+
+    keep = splats.opacities >= scene_cfg.opacity_threshold
+    n_opaque = int(keep.sum())
+    if scene_cfg.crop is not None:
+        c = torch.tensor(scene_cfg.crop, dtype=splats.means.dtype)
+        p = splats.means
+        keep &= ((p[:, 0] >= c[0]) & (p[:, 0] <= c[1]) & (p[:, 1] >= c[2]) & (p[:, 1] <= c[3])
+                 & (p[:, 2] >= c[4]) & (p[:, 2] <= c[5]))
+    if not bool(keep.any()):
+        where = (f"scene.opacity_threshold={scene_cfg.opacity_threshold} kept {n_opaque} of {splats.num}"
+                 + (f" and scene.crop={list(scene_cfg.crop)} kept none of them" if scene_cfg.crop else ""))
+        raise UserInputError(f"{origin_name}: no splats left to simulate ({where}); lower the threshold or widen the crop")
+    splats = regularise_anisotropy(splats.subset(keep), scene_cfg.max_anisotropy)
+
+    vis = splats.means.double().numpy()  # (N,3)
+    big = float(splats.scales.max())
+    fallback = max(4.0 * big, 1e-3) if math.isfinite(big) else 1e-3
+    if sim_cfg.domain is not None:
+        lo, dx, dims, hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
+    else:
+        lo, dx, dims, hi = fit_domain(vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback)
+
+    # Voxel box: cells aligned with the domain's grid around the particles, with a free
+    # margin so that the outside is connected around the object (it may poke out of the
+    # domain: only the interior, which lies within the particles' hull, is used).
+    margin = 2 + _CLOSE_CELLS + _MAX_SAMPLE_HALF  # splat samples may reach 4 dx past a mean
+    c_lo = np.floor((vis.min(0) - lo) / dx).astype(np.int64) - margin
+    c_hi = np.floor((vis.max(0) - lo) / dx).astype(np.int64) + 1 + margin
+    vox_origin = lo + c_lo * dx
+    shape = tuple(int(v) for v in (c_hi - c_lo))
+    shell = voxelise(splats, vox_origin, dx, shape)
+    inner, _ = _classify(shell, _CLOSE_CELLS)
+    interior_cells = np.argwhere(inner) if scene_cfg.fill else np.zeros((0, 3), np.int64)
+    if len(interior_cells) > scene_cfg.max_particles:
+        # Clear cap: never more interior candidates than max_particles (an even subset;
+        # the skipped cells' volume goes to the nearest particle, so mass is kept).
+        pick = stratified_subset(interior_cells.astype(np.float64), scene_cfg.max_particles,
+                                 np.random.default_rng(FILL_SEED))
+        interior_cells = interior_cells[pick]
+    fill_pts = vox_origin + (interior_cells + 0.5) * dx
+    particles = np.concatenate([vis, fill_pts])
+    weight = _cell_weights(shell, inner, scene_cfg.fill)
+    volumes = _particle_volumes(particles, vox_origin, dx, weight)
+    total_volume = float(volumes.sum())
+    n_vis, n_int = len(vis), len(fill_pts)
+
+    parent = np.arange(n_vis)
+    if len(particles) > scene_cfg.max_particles:
+        from scipy.spatial import cKDTree
+
+        kept = stratified_subset(particles, scene_cfg.max_particles, np.random.default_rng(FILL_SEED + 1))
+        tree = cKDTree(particles[kept])
+        is_kept = np.zeros(len(particles), dtype=bool)
+        is_kept[kept] = True
+        new_volumes = volumes[kept].copy()
+        dropped = np.nonzero(~is_kept)[0]
+        _, near = tree.query(particles[dropped])
+        np.add.at(new_volumes, near, volumes[dropped])  # mass is conserved
+        new_index = np.full(len(particles), -1)
+        new_index[kept] = np.arange(len(kept))
+        parent = new_index[:n_vis].copy()
+        lost = parent < 0
+        parent[lost] = near[np.searchsorted(dropped, np.nonzero(lost)[0])]
+        particles, volumes = particles[kept], new_volumes
+        n_int = int((kept >= n_vis).sum())
+    offset = vis - particles[parent]
+
+    return SimScene(
+        splats=splats,
+        particles=torch.from_numpy(particles).float(),
+        volumes=torch.from_numpy(volumes).float(),
+        n_interior=int(n_int),
+        splat_parent=torch.from_numpy(parent.astype(np.int64)),
+        splat_offset=torch.from_numpy(offset).float(),
+        domain_lo=torch.from_numpy(lo).float(),
+        domain_hi=torch.from_numpy(hi).float(),
+        dx=float(dx),
+        grid_dims=tuple(int(d) for d in dims),
+        source_to_world=torch.from_numpy(m),
+        total_volume=total_volume,
+    )
