@@ -31,7 +31,9 @@ def init_warp(quiet: bool = True):
     import warp as wp
 
     wp.config.kernel_cache_dir = str(cache_dir() / "warp")
-    wp.config.quiet = quiet
+    # Warp 1.19 prints its banner and "Module ... load" lines to stdout at INFO level,
+    # which would corrupt machine-readable output (`--json`): keep it at warnings.
+    wp.config.log_level = wp.LOG_WARNING if quiet else wp.LOG_INFO
     wp.init()
     return wp
 

@@ -1,0 +1,623 @@
+"""Boundary conditions and external forces of the MPM solver (the paper's module table).
+
+A :class:`BoundaryProgram` is built once from the run config's ``boundary_conditions``
+and ``forces`` lists (``config.BoundaryCondition`` / ``config.Force`` models), the grid
+geometry and the INITIAL particle positions (particle selections by box / sphere / all
+are computed once, at time 0, and stored as masks). The solver calls three hooks per
+substep (CONTRACTS.md, "sim"):
+
+* ``apply_pre_p2g(model, state_in, t, substep, dt)`` -- imposed velocities of
+  translated / rotated particles and v = 0 of frozen ones, so P2G scatters them;
+* ``apply_grid(model, grid_v, t, substep, dt, region=None)`` -- grid conditions after the
+  grid update (optionally on the active sub-box of nodes only):
+  ``clamp_grid``, ``bounding_box``, ``surface_collider`` (sticky / slip / frictional / cut);
+* ``apply_post_g2p(model, state_in, state_out, t, substep, dt)`` -- additive forces
+  (``add_constant_force``, ``add_impulse``: v += dt a, x += dt^2 a), imposed motion
+  (``force_particles_translation`` / ``_rotation``: x = x_in moved by the imposed motion),
+  frozen particles of ``release_particles`` (held at x_in) and removal by ``cut``.
+
+``t`` is the time at the start of the substep [s]; an entry acts in substep s when
+``start <= t < end`` (``unit: substeps``: ``start <= s < end``).
+
+Gradients: every hook modifies arrays in place, which a plain ``wp.Tape`` would
+differentiate wrongly (Warp's adjoints assume each array element is written once). So
+when a tape records, a hook saves its inputs, launches with ``record_tape=False`` and
+records an exact custom adjoint (``tape.record_func``) that maps the incoming gradient
+of the modified arrays through the kernel's adjoint and accumulates the gradients of
+the learned parameters (:attr:`BoundaryProgram.params`: force magnitudes, imposed
+velocities, friction coefficients, clamp velocities).
+
+This module does not integrate particles, own grids, or know about materials.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from motionphysics.config import (
+    AddConstantForce,
+    AddImpulse,
+    BoundaryCondition,
+    BoundingBox,
+    ClampGrid,
+    Force,
+    ForceParticlesRotation,
+    ForceParticlesTranslation,
+    ReleaseParticles,
+    SurfaceCollider,
+)
+from motionphysics.errors import UserInputError
+from motionphysics.runtime import init_warp
+
+__all__ = ["BoundaryParam", "BoundaryProgram", "particle_bounds"]
+
+_TIME_EPS = 1.0e-3
+"""Window tests compare ``t + _TIME_EPS * dt`` so a substep starting exactly at a window
+edge (up to round-off of ``substep * dt``) is classified the same on every machine."""
+
+_NO_END = 1.0e9  # config default of `end`: "never ends"
+
+
+def particle_bounds(domain_lo: Sequence[float], dx: float, grid_dims: Sequence[int]):
+    """Box [m] that particle positions are clamped to (same rule as sim-core's G2P).
+
+    A particle at grid coordinate g needs its quadratic stencil ``floor(g - 0.5) + {0,1,2}``
+    inside ``[0, n)``; keeping ``2 <= g <= n - 3`` leaves one spare cell each side.
+    Returns ``(x_min, x_max)``, two tuples of 3 floats.
+    """
+    lo = [float(a) for a in domain_lo]
+    x_min = tuple(lo[a] + 2.0 * dx for a in range(3))
+    x_max = tuple(lo[a] + (int(grid_dims[a]) - 3) * dx for a in range(3))
+    return x_min, x_max
+
+
+@dataclass(frozen=True)
+class BoundaryParam:
+    """One learnable boundary/force parameter.
+
+    Attributes:
+        name: ``"forces[0].force"``, ``"boundary_conditions[1].friction"``, ...
+        array: Warp storage, shape (1,), dtype vec3 (size 3) or float32 (size 1), with
+            ``requires_grad``; kernels read ``array[0]`` and their adjoints fill ``array.grad``.
+        size: 3 or 1.
+        unit: physical unit of the value (``"m/s^2"``, ``"m/s"``, ``"rad/s"``, ``"-"``).
+    """
+
+    name: str
+    array: Any
+    size: int
+    unit: str
+
+    def value(self) -> np.ndarray:
+        """Current value, float32 shape (size,)."""
+        return self.array.numpy().reshape(self.size).astype(np.float32)
+
+    def grad(self) -> np.ndarray:
+        """Accumulated gradient, float32 shape (size,) (zeros when none was computed)."""
+        if self.array.grad is None:
+            return np.zeros(self.size, dtype=np.float32)
+        return self.array.grad.numpy().reshape(self.size).astype(np.float32)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _active_tape():
+    import warp._src.context as ctx  # the tape Warp is recording on, if any
+
+    return ctx.runtime.tape
+
+
+def _launch(kernel, dim, inputs: list, targets: list, extra_outputs: Sequence = (), device=None,
+            grid_offset=None):
+    """Launch ``kernel(*inputs, *sources, *targets, *extra_outputs)`` modifying ``targets`` in place.
+
+    Without an active tape the sources ARE the targets (each thread reads and writes only
+    its own element). With a tape, the sources are saved copies and a custom adjoint is
+    recorded: on the launch domain ``targets.grad <- J^T targets.grad`` (elsewhere it is
+    left as is), and the inputs' (parameters', positions') ``.grad`` accumulate.
+    ``grid_offset``: for grid kernels launched over a sub-box (``dim``) of 3D targets,
+    the box's first node (the kernel's first input).
+    """
+    wp = init_warp()
+    tape = _active_tape()
+    needs_grad = any(getattr(a, "requires_grad", False) for a in (*inputs, *targets))
+    if tape is None or not needs_grad:
+        wp.launch(kernel, dim=dim, inputs=[*inputs, *targets], outputs=[*targets, *extra_outputs],
+                  device=device, record_tape=False)
+        return
+    saved = [wp.clone(a, requires_grad=False) for a in targets]
+    wp.launch(kernel, dim=dim, inputs=[*inputs, *saved], outputs=[*targets, *extra_outputs],
+              device=device, record_tape=False)
+
+    def backward():
+        # Incoming gradients are read from copies, so Warp's store-adjoint does not zero
+        # them in place; the result is then written over the launch domain only.
+        adj_saved = [wp.zeros(a.shape, dtype=a.dtype, device=a.device) if a.grad is not None else None
+                     for a in targets]
+        adj_targets = [wp.clone(a.grad, requires_grad=False) if a.grad is not None else None for a in targets]
+        adj_inputs = [tape.get_adjoint(a) for a in inputs]
+        adj_extra = [tape.get_adjoint(a) for a in extra_outputs]
+        wp.launch(kernel, dim=dim, inputs=[*inputs, *saved], outputs=[*targets, *extra_outputs],
+                  adj_inputs=[*adj_inputs, *adj_saved], adj_outputs=[*adj_targets, *adj_extra],
+                  device=device, adjoint=True, record_tape=False)
+        for a, g in zip(targets, adj_saved, strict=True):
+            if g is None:
+                continue
+            if grid_offset is None:
+                wp.copy(a.grad, g)
+            else:
+                from motionphysics.sim import boundary_kernels as K
+
+                wp.launch(K._copy_grid_region, dim=dim, inputs=[grid_offset, g], outputs=[a.grad],
+                          device=device, record_tape=False)
+
+    tracked = [a for a in (*inputs, *targets) if isinstance(a, wp.array) and a.grad is not None]
+    tape.record_func(backward=backward, arrays=tracked)
+
+
+@dataclass(frozen=True)
+class _Window:
+    start: float
+    end: float
+    unit: str
+
+    def now(self, t: float, substep: int, dt: float) -> float:
+        """The clock this window is measured in: seconds (shifted by round-off slack) or substeps."""
+        if self.unit == "substeps":
+            return float(substep)
+        return float(t) + _TIME_EPS * float(dt)
+
+    def active(self, t: float, substep: int, dt: float) -> bool:
+        u = self.now(t, substep, dt)
+        return self.start <= u < self.end
+
+
+def _window(entry, where: str) -> _Window:
+    start, end = float(entry.start), float(entry.end)
+    if not (math.isfinite(start) and math.isfinite(end)):
+        raise UserInputError(f"{where}: start and end must be finite numbers")
+    if end <= start:
+        raise UserInputError(f"{where}.end: expected end > start, got start={start:g}, end={end:g}")
+    if entry.unit == "substeps":
+        if start != round(start) or (end != round(end) and end != _NO_END):
+            raise UserInputError(f"{where}: with unit 'substeps', start and end must be whole substep indices")
+        if start < 0:
+            raise UserInputError(f"{where}.start: expected a substep index >= 0, got {start:g}")
+    return _Window(start, end, entry.unit)
+
+
+def _as_model(entry, union, where: str):
+    """A config entry as its pydantic model (plain mappings are validated like the config)."""
+    if not isinstance(entry, dict):
+        return entry
+    from pydantic import TypeAdapter, ValidationError
+
+    try:
+        return TypeAdapter(union).validate_python(entry)
+    except ValidationError as err:
+        e = err.errors()[0]
+        loc = "".join(f"[{x}]" if isinstance(x, int) else f".{x}" for x in e.get("loc", ())[1:])
+        raise UserInputError(f"{where}{loc}: {e.get('msg', 'invalid value')}") from None
+
+
+def _box(box, where: str) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(box[0], dtype=np.float64)
+    hi = np.asarray(box[1], dtype=np.float64)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise UserInputError(f"{where}: box corners must be finite")
+    if not np.all(lo < hi):
+        raise UserInputError(f"{where}: expected [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max")
+    return lo, hi
+
+
+def _unit(vec, where: str) -> np.ndarray:
+    n = np.asarray(vec, dtype=np.float64)
+    norm = float(np.linalg.norm(n))
+    if not math.isfinite(norm) or norm < 1e-12:
+        raise UserInputError(f"{where}: expected a nonzero direction vector, got {list(vec)}")
+    return n / norm
+
+
+def _t3(a) -> tuple[float, float, float]:
+    return tuple(float(x) for x in np.asarray(a, dtype=np.float64).reshape(3))  # type: ignore[return-value]
+
+
+def _finite(vec, where: str) -> np.ndarray:
+    a = np.atleast_1d(np.asarray(vec, dtype=np.float64))
+    if not np.all(np.isfinite(a)):
+        raise UserInputError(f"{where}: expected finite numbers, got {vec}")
+    return a
+
+
+def _span(x0: np.ndarray) -> str:
+    lo, hi = x0.min(axis=0), x0.max(axis=0)
+    return "[" + ", ".join(f"{a:.3g}..{b:.3g}" for a, b in zip(lo, hi, strict=True)) + "]"
+
+
+def _selection(entry, x0: np.ndarray, where: str) -> np.ndarray:
+    """Boolean mask [P] of the particles an entry acts on (box, sphere, or all)."""
+    if entry.box is not None:
+        lo, hi = _box(entry.box, f"{where}.box")
+        sel = np.all((x0 >= lo) & (x0 <= hi), axis=1)
+        shape = "box"
+    elif entry.sphere is not None:
+        c = _finite(entry.sphere[0], f"{where}.sphere")
+        r = float(entry.sphere[1])
+        if not (math.isfinite(r) and r > 0):
+            raise UserInputError(f"{where}.sphere: expected a radius > 0, got {r:g}")
+        sel = np.sum((x0 - c) ** 2, axis=1) <= r * r
+        shape = "sphere"
+    else:
+        return np.ones(x0.shape[0], dtype=bool)
+    if not sel.any():
+        raise UserInputError(f"{where}.{shape}: selects no particles (the particles span x,y,z {_span(x0)})")
+    return sel
+
+
+# ------------------------------------------------------------------------ operations
+
+
+@dataclass
+class _GridOp:
+    where: str
+    window: _Window
+    kind: str  # clamp_grid | bounding_box | sticky | slip | frictional | cut
+    scalars: dict[str, Any] = field(default_factory=dict)
+    param: BoundaryParam | None = None
+
+
+@dataclass
+class _ParticleOp:
+    where: str
+    window: _Window
+    kind: str  # accel | translation | rotation | release
+    mask: Any = None  # wp.array float32 [P] (1 selected) -- or release_at for `release`
+    scalars: dict[str, Any] = field(default_factory=dict)
+    param: BoundaryParam | None = None
+    last_release: float = 0.0
+
+
+@dataclass
+class _CutOp:
+    where: str
+    window: _Window
+    use_box: int
+    box_lo: tuple
+    box_hi: tuple
+    point: tuple
+    normal: tuple
+
+
+class BoundaryProgram:
+    """The boundary conditions and forces of one simulation (see the module docstring).
+
+    Attributes:
+        params: learnable parameters (:class:`BoundaryParam`), in config order.
+        selected: number of particles each force entry selects, by ``"forces[i]"``.
+        has_cut: whether a ``cut`` collider exists (the State then needs ``active``).
+        particle_count, device, domain_lo, dx, grid_dims: the geometry it was built for.
+    """
+
+    def __init__(self, *, particle_count: int, device: str, domain_lo, dx: float, grid_dims):
+        self.particle_count = int(particle_count)
+        self.device = device
+        self.domain_lo = tuple(float(a) for a in domain_lo)
+        self.dx = float(dx)
+        self.grid_dims = tuple(int(n) for n in grid_dims)
+        self.params: list[BoundaryParam] = []
+        self.selected: dict[str, int] = {}
+        self._grid_ops: list[_GridOp] = []
+        self._particle_ops: list[_ParticleOp] = []
+        self._cut_ops: list[_CutOp] = []
+        self._x_min, self._x_max = particle_bounds(self.domain_lo, self.dx, self.grid_dims)
+
+    # -------------------------------------------------------------- construction
+
+    @classmethod
+    def from_config(cls, boundary_conditions: Sequence, forces: Sequence, model, x0=None) -> BoundaryProgram:
+        """Build from config entries and a sim Model (CONTRACTS.md: Model fields used).
+
+        ``x0``: initial particle positions [m], (P, 3) array / tensor / wp.array vec3;
+        default ``model.particle_x0``.
+        """
+        if x0 is None:
+            x0 = getattr(model, "particle_x0", None)
+            if x0 is None:
+                raise TypeError("BoundaryProgram.from_config needs x0= or model.particle_x0 (initial positions)")
+        return cls.build(
+            boundary_conditions, forces, x0=x0, domain_lo=model.domain_lo, dx=model.dx,
+            grid_dims=model.grid_dims, device=model.device,
+        )
+
+    @classmethod
+    def build(cls, boundary_conditions: Sequence, forces: Sequence, *, x0, domain_lo, dx: float,
+              grid_dims, device: str = "cpu") -> BoundaryProgram:
+        """Build from config entries and explicit geometry.
+
+        ``x0``: initial particle positions [m], (P, 3); ``domain_lo`` [m] (3,) position of
+        node (0,0,0); ``dx`` [m]; ``grid_dims`` (nx, ny, nz) node counts.
+        Bad entries raise :class:`UserInputError` naming ``boundary_conditions[i]`` / ``forces[i]``.
+        """
+        if hasattr(x0, "detach"):
+            x0 = x0.detach().cpu().numpy()
+        elif hasattr(x0, "numpy") and not isinstance(x0, np.ndarray):
+            x0 = x0.numpy()
+        x0 = np.asarray(x0, dtype=np.float64).reshape(-1, 3)
+        prog = cls(particle_count=x0.shape[0], device=device, domain_lo=domain_lo, dx=dx, grid_dims=grid_dims)
+        for i, bc in enumerate(boundary_conditions):
+            where = f"boundary_conditions[{i}]"
+            prog._add_bc(_as_model(bc, BoundaryCondition, where), where)
+        for i, force in enumerate(forces):
+            where = f"forces[{i}]"
+            prog._add_force(_as_model(force, Force, where), x0, where)
+        return prog
+
+    def _new_param(self, name: str, value, unit: str) -> BoundaryParam:
+        wp = init_warp()
+        v = np.asarray(value, dtype=np.float32).reshape(-1)
+        if v.size == 3:
+            arr = wp.array(v.reshape(1, 3), dtype=wp.vec3, device=self.device, requires_grad=True)
+        else:
+            arr = wp.array(v.reshape(1), dtype=float, device=self.device, requires_grad=True)
+        p = BoundaryParam(name=name, array=arr, size=int(v.size), unit=unit)
+        self.params.append(p)
+        return p
+
+    def _node_positions_1d(self, a: int) -> np.ndarray:
+        return self.domain_lo[a] + self.dx * np.arange(self.grid_dims[a])
+
+    def _add_bc(self, bc, where: str) -> None:
+        win = _window(bc, where)
+        if isinstance(bc, ClampGrid):
+            lo, hi = _box(bc.box, f"{where}.box")
+            tol = 1e-4 * self.dx
+            if not all(np.any((self._node_positions_1d(a) >= lo[a] - tol) & (self._node_positions_1d(a) <= hi[a] + tol))
+                       for a in range(3)):
+                raise UserInputError(f"{where}.box: contains no grid node of the simulation domain")
+            vel = _finite(bc.velocity, f"{where}.velocity")
+            param = self._new_param(f"{where}.velocity", vel, "m/s")
+            axis = tuple(1.0 if a else 0.0 for a in bc.axis)
+            if not any(bc.axis):
+                raise UserInputError(f"{where}.axis: expected at least one clamped axis (true)")
+            self._grid_ops.append(_GridOp(where, win, "clamp_grid",
+                                          {"box_lo": _t3(lo), "box_hi": _t3(hi), "axis": axis}, param))
+        elif isinstance(bc, BoundingBox):
+            if 2 * bc.padding >= min(self.grid_dims):
+                raise UserInputError(
+                    f"{where}.padding: {bc.padding} cells leaves no interior in a grid of {self.grid_dims} nodes")
+            param = self._new_param(f"{where}.friction", float(bc.friction), "-")
+            self._grid_ops.append(_GridOp(where, win, "bounding_box", {"padding": int(bc.padding)}, param))
+        elif isinstance(bc, SurfaceCollider):
+            point = _finite(bc.point, f"{where}.point")
+            normal = _unit(bc.normal, f"{where}.normal")
+            geo = {"point": _t3(point), "normal": _t3(normal)}
+            if bc.mode == "cut":
+                use_box = bc.box is not None
+                lo, hi = _box(bc.box, f"{where}.box") if use_box else (np.zeros(3), np.zeros(3))
+                param = self._new_param(f"{where}.damping", float(bc.damping), "-")
+                self._grid_ops.append(_GridOp(where, win, "cut",
+                                              {**geo, "use_box": int(use_box), "box_lo": _t3(lo),
+                                               "box_hi": _t3(hi)}, param))
+                self._cut_ops.append(_CutOp(where, win, int(use_box), _t3(lo), _t3(hi),
+                                            _t3(point), _t3(normal)))
+                return
+            if bc.box is not None:
+                raise UserInputError(f"{where}.box: only the 'cut' mode takes a box (mode is {bc.mode!r})")
+            if bc.mode == "sticky" and "friction" in bc.model_fields_set and bc.friction != 0:
+                raise UserInputError(f"{where}.friction: must be 0 (or absent) with mode 'sticky'")
+            param = None
+            if bc.mode == "frictional":
+                param = self._new_param(f"{where}.friction", float(bc.friction), "-")
+            self._grid_ops.append(_GridOp(where, win, bc.mode, geo, param))
+        else:  # pragma: no cover - the config's discriminated union admits nothing else
+            raise UserInputError(f"{where}.type: unknown boundary condition {type(bc).__name__}")
+
+    def _add_force(self, force, x0: np.ndarray, where: str) -> None:
+        wp = init_warp()
+        win = _window(force, where)
+        sel = _selection(force, x0, where)
+        self.selected[where] = int(sel.sum())
+        mask = wp.array(sel.astype(np.float32), dtype=float, device=self.device)
+        if isinstance(force, AddConstantForce | AddImpulse):
+            param = self._new_param(f"{where}.force", _finite(force.force, f"{where}.force"), "m/s^2")
+            self._particle_ops.append(_ParticleOp(where, win, "accel", mask, {}, param))
+        elif isinstance(force, ForceParticlesTranslation):
+            if not any(force.axis):
+                raise UserInputError(f"{where}.axis: expected at least one imposed axis (true)")
+            param = self._new_param(f"{where}.velocity", _finite(force.velocity, f"{where}.velocity"), "m/s")
+            axis = tuple(1.0 if a else 0.0 for a in force.axis)
+            self._particle_ops.append(_ParticleOp(where, win, "translation", mask, {"axis": axis}, param))
+        elif isinstance(force, ForceParticlesRotation):
+            center = _finite(force.center, f"{where}.center")
+            axis = _unit(force.axis_direction, f"{where}.axis_direction")
+            omega = _finite(force.angular_velocity, f"{where}.angular_velocity")
+            param = self._new_param(f"{where}.angular_velocity", omega, "rad/s")
+            self._particle_ops.append(_ParticleOp(where, win, "rotation", mask,
+                                                  {"center": _t3(center), "axis": _t3(axis)}, param))
+        elif isinstance(force, ReleaseParticles):
+            if "end" not in force.model_fields_set:
+                raise UserInputError(f"{where}.end: release_particles needs the time the last layer is released")
+            release_at = _release_times(x0, sel, force.layers, "xyz".index(force.release_axis),
+                                        win.start, win.end)
+            arr = wp.array(release_at.astype(np.float32), dtype=float, device=self.device)
+            self._particle_ops.append(_ParticleOp(where, win, "release", arr, {}, None,
+                                                  last_release=float(release_at[sel].max())))
+        else:  # pragma: no cover
+            raise UserInputError(f"{where}.type: unknown force {type(force).__name__}")
+
+    # ---------------------------------------------------------------- parameters
+
+    def param(self, name: str) -> BoundaryParam:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(f"no boundary parameter {name!r}; have {[p.name for p in self.params]}")
+
+    def set_param_values(self, values: dict[str, Any]) -> None:
+        """Overwrite parameter values (floats, sequences, numpy arrays or torch tensors)."""
+        for name, value in values.items():
+            p = self.param(name)
+            if hasattr(value, "detach"):
+                value = value.detach().cpu().numpy()
+            v = np.asarray(value, dtype=np.float32).reshape(-1)
+            if v.size != p.size:
+                raise ValueError(f"{name}: expected {p.size} value(s), got {v.size}")
+            p.array.assign(v.reshape(1, 3) if p.size == 3 else v)
+
+    def param_values(self) -> dict[str, np.ndarray]:
+        return {p.name: p.value() for p in self.params}
+
+    def param_grads(self) -> dict[str, np.ndarray]:
+        """Gradients accumulated by ``tape.backward`` (float32 (size,) each)."""
+        return {p.name: p.grad() for p in self.params}
+
+    def zero_param_grads(self) -> None:
+        for p in self.params:
+            if p.array.grad is not None:
+                p.array.grad.zero_()
+
+    @property
+    def has_cut(self) -> bool:
+        return bool(self._cut_ops)
+
+    @property
+    def is_empty(self) -> bool:
+        return not (self._grid_ops or self._particle_ops or self._cut_ops)
+
+    # --------------------------------------------------------------------- hooks
+
+    def apply_pre_p2g(self, model, state, t: float, substep: int, dt: float) -> None:
+        """Set imposed and frozen particle velocities on the state P2G reads (in place, idempotent)."""
+        from motionphysics.sim import boundary_kernels as K
+
+        n = self.particle_count
+        for op in self._particle_ops:
+            if op.kind == "translation" and op.window.active(t, substep, dt):
+                _launch(K._set_translation_velocity, n, [op.mask, op.param.array, op.scalars["axis"]],
+                        [state.v], device=self.device)
+            elif op.kind == "rotation" and op.window.active(t, substep, dt):
+                _launch(K._set_rotation_velocity, n,
+                        [op.mask, op.scalars["center"], op.scalars["axis"], op.param.array, state.x],
+                        [state.v], device=self.device)
+            elif op.kind == "release":
+                now = op.window.now(t, substep, dt)
+                if now < op.last_release:
+                    _launch(K._zero_frozen_velocity, n, [op.mask, now], [state.v], device=self.device)
+
+    def apply_grid(self, model, grid_v, t: float, substep: int, dt: float, region=None) -> None:
+        """Grid conditions on node velocities ``grid_v`` [m/s] (nx, ny, nz) vec3, in place.
+
+        ``region``: optional ``(offset, shape)`` (3 ints each) of the sub-box of nodes to
+        process (the nodes the particles' stencils touch; the rest is not read by G2P).
+        Default: the whole grid.
+        """
+        from motionphysics.sim import boundary_kernels as K
+
+        wp = init_warp()
+        if tuple(grid_v.shape) != self.grid_dims:
+            raise ValueError(f"grid_v has shape {tuple(grid_v.shape)}, the program was built for {self.grid_dims}")
+        if region is None:
+            off, dims = (0, 0, 0), self.grid_dims
+        else:
+            off, dims = (tuple(int(a) for a in r) for r in region)
+            if any(o < 0 or n < 0 or o + n > g for o, n, g in zip(off, dims, self.grid_dims, strict=True)):
+                raise ValueError(f"region {region} is not inside the grid {self.grid_dims}")
+            if min(dims) == 0:
+                return
+        off_v = wp.vec3i(*off)
+        lo, dx = self.domain_lo, self.dx
+        kw = {"device": self.device, "grid_offset": off_v}
+        for op in self._grid_ops:
+            if not op.window.active(t, substep, dt):
+                continue
+            s = op.scalars
+            if op.kind == "clamp_grid":
+                _launch(K._clamp_grid, dims,
+                        [off_v, lo, dx, s["box_lo"], s["box_hi"], op.param.array, s["axis"]], [grid_v], **kw)
+            elif op.kind == "bounding_box":
+                _launch(K._bounding_box, dims, [off_v, s["padding"], op.param.array], [grid_v], **kw)
+            elif op.kind == "cut":
+                _launch(K._cut_grid, dims, [off_v, lo, dx, s["use_box"], s["box_lo"], s["box_hi"], s["point"],
+                                            s["normal"], op.param.array], [grid_v], **kw)
+            else:
+                mode = {"sticky": K.MODE_STICKY, "slip": K.MODE_SLIP, "frictional": K.MODE_FRICTIONAL}[op.kind]
+                friction = op.param.array if op.param is not None else self._zero_friction()
+                _launch(K._surface_collider, dims,
+                        [off_v, lo, dx, s["point"], s["normal"], int(mode), friction], [grid_v], **kw)
+
+    def apply_post_g2p(self, model, state_in, state_out, t: float, substep: int, dt: float) -> None:
+        """Forces, imposed motion, frozen and removed particles on ``state_out`` (in place).
+
+        ``state_in`` is the state the substep started from (read only: x, active).
+        """
+        from motionphysics.sim import boundary_kernels as K
+
+        n = self.particle_count
+        xb = (self._x_min, self._x_max)
+        for op in self._particle_ops:
+            if op.kind == "release":
+                now = op.window.now(t, substep, dt)
+                if now < op.last_release:
+                    _launch(K._hold_frozen, n, [op.mask, now, state_in.x],
+                            [state_out.x, state_out.v, state_out.C], device=self.device)
+                continue
+            if not op.window.active(t, substep, dt):
+                continue
+            if op.kind == "accel":
+                _launch(K._add_acceleration, n, [op.mask, op.param.array, float(dt), *xb],
+                        [state_out.x, state_out.v], device=self.device)
+            elif op.kind == "translation":
+                _launch(K._impose_translation, n,
+                        [op.mask, op.param.array, op.scalars["axis"], float(dt), *xb, state_in.x],
+                        [state_out.x, state_out.v], device=self.device)
+            elif op.kind == "rotation":
+                _launch(K._impose_rotation, n,
+                        [op.mask, op.scalars["center"], op.scalars["axis"], op.param.array, float(dt), *xb,
+                         state_in.x],
+                        [state_out.x, state_out.v, state_out.C], device=self.device)
+        if self._cut_ops:
+            self._apply_cuts(state_in, state_out, t, substep, dt)
+
+    def _apply_cuts(self, state_in, state_out, t, substep, dt) -> None:
+        from motionphysics.sim import boundary_kernels as K
+
+        wp = init_warp()
+        act_in = getattr(state_in, "active", None)
+        act_out = getattr(state_out, "active", None)
+        if act_in is None or act_out is None:
+            raise RuntimeError("a 'cut' collider needs State.active (float32 [P]); see CONTRACTS.md, sim")
+        # The first cut starts from state_in's mask; the mask is never differentiated.
+        wp.copy(act_out, act_in)
+        for op in self._cut_ops:
+            mark = int(op.window.active(t, substep, dt))
+            _launch(K._cut_particles, self.particle_count,
+                    [mark, op.use_box, op.box_lo, op.box_hi, op.point, op.normal, state_in.x],
+                    [state_out.x, state_out.v, state_out.C, act_out], device=self.device)
+
+    def _zero_friction(self):
+        if not hasattr(self, "_zero_friction_arr"):
+            wp = init_warp()
+            self._zero_friction_arr = wp.zeros(1, dtype=float, device=self.device)
+        return self._zero_friction_arr
+
+
+def _release_times(x0: np.ndarray, sel: np.ndarray, layers: int, axis: int, start: float, end: float) -> np.ndarray:
+    """Release time per particle (float64 [P]): selected particles are cut into ``layers``
+    equal-width slabs along ``axis``; the highest slab is released first, at
+    ``start + (end - start) / layers``, the lowest at ``end``. Unselected: -inf (never frozen)."""
+    out = np.full(x0.shape[0], -np.inf)
+    c = x0[sel, axis]
+    cmax, cmin = float(c.max()), float(c.min())
+    width = (cmax - cmin) / layers
+    if width > 0:
+        layer = np.minimum(np.floor((cmax - c) / width), layers - 1)
+    else:
+        layer = np.zeros_like(c)
+    out[sel] = start + (layer + 1.0) * (end - start) / layers
+    return out

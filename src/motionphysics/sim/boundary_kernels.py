@@ -1,0 +1,431 @@
+"""Warp kernels of the boundary conditions and forces (private; ``boundary.py`` launches them).
+
+Every kernel maps SOURCE arrays to DESTINATION arrays element by element and writes
+every destination element (identity where it does not act). The launcher in
+``boundary.py`` runs them in place (source and destination the same array) when no
+tape records, and with saved sources and an exact custom adjoint when one does, so
+the argument order is always ``(*inputs, *sources, *destinations, *extra_outputs)``
+(extra outputs are written whole from inputs, never in place).
+
+Differentiability: no kernel assigns a component of a local vector (not differentiated
+by Warp); new vectors are built instead. Branches (contact, inward motion, static vs
+sliding friction, window flags) select between pieces that are continuous in the
+velocities, and the adjoint is the derivative of the piece taken.
+
+Grids: ``wp.array3d(dtype=wp.vec3)`` of node velocities [m/s], node (i, j, k) at
+``lo + (i, j, k) * dx`` [m]; grid kernels are launched over a sub-box of nodes whose
+first index is their ``off`` argument. Particles: ``wp.array(dtype=wp.vec3)`` [P].
+Learned parameters are one-element arrays (``[0]`` read) so their ``.grad`` collects
+the adjoint.
+"""
+
+from __future__ import annotations
+
+from motionphysics.runtime import init_warp
+
+wp = init_warp()
+
+MODE_STICKY = wp.constant(0)
+MODE_SLIP = wp.constant(1)
+MODE_FRICTIONAL = wp.constant(2)
+
+CONTACT_TOL = wp.constant(1.0e-4)
+"""Signed-distance tolerance of contact tests, as a fraction of dx (float32 round-off
+of node positions; a node exactly on the plane is in contact)."""
+
+
+@wp.func
+def _node_pos(i: int, j: int, k: int, lo: wp.vec3, dx: float):
+    return lo + dx * wp.vec3(float(i), float(j), float(k))
+
+
+@wp.func
+def _in_box(p: wp.vec3, box_lo: wp.vec3, box_hi: wp.vec3, tol: float):
+    inside = True
+    for a in range(3):
+        if p[a] < box_lo[a] - tol or p[a] > box_hi[a] + tol:
+            inside = False
+    return inside
+
+
+@wp.func
+def _coulomb(vt: wp.vec3, vn_abs: float, friction: float):
+    """Tangential velocity after Coulomb friction: |vt| reduced by friction*|vn|, not below 0."""
+    lt = wp.length(vt)
+    out = wp.vec3(0.0, 0.0, 0.0)
+    if lt > friction * vn_abs:
+        out = vt * (1.0 - friction * vn_abs / lt)
+    return out
+
+
+# ---------------------------------------------------------------------------- grid
+
+
+@wp.kernel
+def _clamp_grid(
+    off: wp.vec3i,
+    lo: wp.vec3,
+    dx: float,
+    box_lo: wp.vec3,
+    box_hi: wp.vec3,
+    velocity: wp.array(dtype=wp.vec3),
+    axis: wp.vec3,
+    v_src: wp.array3d(dtype=wp.vec3),
+    v_dst: wp.array3d(dtype=wp.vec3),
+):
+    # Dirichlet clamp: components selected by `axis` (0/1 per component) take `velocity`.
+    i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
+    i = i + off[0]
+    j = j + off[1]
+    k = k + off[2]
+    v = v_src[i, j, k]
+    if _in_box(_node_pos(i, j, k, lo, dx), box_lo, box_hi, CONTACT_TOL * dx):
+        v = wp.cw_mul(axis, velocity[0]) + wp.cw_mul(wp.vec3(1.0, 1.0, 1.0) - axis, v)
+    v_dst[i, j, k] = v
+
+
+@wp.kernel
+def _bounding_box(
+    off: wp.vec3i,
+    padding: int,
+    friction: wp.array(dtype=float),
+    v_src: wp.array3d(dtype=wp.vec3),
+    v_dst: wp.array3d(dtype=wp.vec3),
+):
+    # Domain walls: within `padding` nodes of a face, the outward component is removed;
+    # Coulomb friction then acts on what remains (the tangential part).
+    i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
+    i = i + off[0]
+    j = j + off[1]
+    k = k + off[2]
+    v = v_src[i, j, k]
+    nx = v_src.shape[0]
+    ny = v_src.shape[1]
+    nz = v_src.shape[2]
+    vx = v[0]
+    vy = v[1]
+    vz = v[2]
+    rx = 0.0
+    ry = 0.0
+    rz = 0.0
+    if i < padding and vx < 0.0:
+        rx = vx
+        vx = 0.0
+    if i >= nx - padding and vx > 0.0:
+        rx = vx
+        vx = 0.0
+    if j < padding and vy < 0.0:
+        ry = vy
+        vy = 0.0
+    if j >= ny - padding and vy > 0.0:
+        ry = vy
+        vy = 0.0
+    if k < padding and vz < 0.0:
+        rz = vz
+        vz = 0.0
+    if k >= nz - padding and vz > 0.0:
+        rz = vz
+        vz = 0.0
+    out = wp.vec3(vx, vy, vz)
+    removed = wp.vec3(rx, ry, rz)
+    mu = friction[0]
+    if mu > 0.0 and wp.dot(removed, removed) > 0.0:
+        out = _coulomb(out, wp.length(removed), mu)
+    v_dst[i, j, k] = out
+
+
+@wp.kernel
+def _surface_collider(
+    off: wp.vec3i,
+    lo: wp.vec3,
+    dx: float,
+    point: wp.vec3,
+    normal: wp.vec3,
+    mode: int,
+    friction: wp.array(dtype=float),
+    v_src: wp.array3d(dtype=wp.vec3),
+    v_dst: wp.array3d(dtype=wp.vec3),
+):
+    # Plane (point, unit normal towards the free side). Nodes on or behind it are in
+    # contact: sticky -> 0; slip -> inward normal part removed; frictional -> Coulomb.
+    i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
+    i = i + off[0]
+    j = j + off[1]
+    k = k + off[2]
+    v = v_src[i, j, k]
+    d = wp.dot(_node_pos(i, j, k, lo, dx) - point, normal)
+    if d <= CONTACT_TOL * dx:
+        vn = wp.dot(v, normal)
+        if mode == MODE_STICKY:
+            v = wp.vec3(0.0, 0.0, 0.0)
+        elif vn < 0.0:
+            vt = v - vn * normal
+            if mode == MODE_SLIP:
+                v = vt
+            else:
+                v = _coulomb(vt, -vn, friction[0])
+    v_dst[i, j, k] = v
+
+
+@wp.kernel
+def _cut_grid(
+    off: wp.vec3i,
+    lo: wp.vec3,
+    dx: float,
+    use_box: int,
+    box_lo: wp.vec3,
+    box_hi: wp.vec3,
+    point: wp.vec3,
+    normal: wp.vec3,
+    damping: wp.array(dtype=float),
+    v_src: wp.array3d(dtype=wp.vec3),
+    v_dst: wp.array3d(dtype=wp.vec3),
+):
+    # Cut region (the box, or the half-space behind the plane): velocity scaled by 1 - damping.
+    i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
+    i = i + off[0]
+    j = j + off[1]
+    k = k + off[2]
+    v = v_src[i, j, k]
+    xn = _node_pos(i, j, k, lo, dx)
+    inside = False
+    if use_box != 0:
+        inside = _in_box(xn, box_lo, box_hi, CONTACT_TOL * dx)
+    else:
+        inside = wp.dot(xn - point, normal) <= CONTACT_TOL * dx
+    if inside:
+        v = (1.0 - damping[0]) * v
+    v_dst[i, j, k] = v
+
+
+@wp.kernel
+def _copy_grid_region(off: wp.vec3i, src: wp.array3d(dtype=wp.vec3), dst: wp.array3d(dtype=wp.vec3)):
+    # Backward helper: the adjoint of a region launch replaces the gradient on the region only.
+    i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
+    i = i + off[0]
+    j = j + off[1]
+    k = k + off[2]
+    dst[i, j, k] = src[i, j, k]
+
+
+# ----------------------------------------------------------------------- particles
+
+
+@wp.func
+def _clamp_vec(x: wp.vec3, x_min: wp.vec3, x_max: wp.vec3):
+    return wp.vec3(
+        wp.clamp(x[0], x_min[0], x_max[0]),
+        wp.clamp(x[1], x_min[1], x_max[1]),
+        wp.clamp(x[2], x_min[2], x_max[2]),
+    )
+
+
+@wp.kernel
+def _add_acceleration(
+    mask: wp.array(dtype=float),
+    accel: wp.array(dtype=wp.vec3),
+    dt: float,
+    x_min: wp.vec3,
+    x_max: wp.vec3,
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # After G2P: dv = dt a, dx = dt^2 a (as if a had been added with gravity on the grid).
+    p = wp.tid()
+    m = mask[p]
+    x = x_src[p]
+    v = v_src[p]
+    if m > 0.0:
+        a = accel[0]
+        v = v + (m * dt) * a
+        x = _clamp_vec(x + (m * dt * dt) * a, x_min, x_max)
+    x_dst[p] = x
+    v_dst[p] = v
+
+
+@wp.kernel
+def _set_translation_velocity(
+    mask: wp.array(dtype=float),
+    velocity: wp.array(dtype=wp.vec3),
+    axis: wp.vec3,
+    v_src: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # Before P2G: selected particles carry the imposed velocity on the masked axes.
+    p = wp.tid()
+    v = v_src[p]
+    if mask[p] > 0.0:
+        v = wp.cw_mul(axis, velocity[0]) + wp.cw_mul(wp.vec3(1.0, 1.0, 1.0) - axis, v)
+    v_dst[p] = v
+
+
+@wp.kernel
+def _impose_translation(
+    mask: wp.array(dtype=float),
+    velocity: wp.array(dtype=wp.vec3),
+    axis: wp.vec3,
+    dt: float,
+    x_min: wp.vec3,
+    x_max: wp.vec3,
+    x_in: wp.array(dtype=wp.vec3),
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # After G2P: on the masked axes the particle moves x_in + dt v_imposed exactly.
+    p = wp.tid()
+    x = x_src[p]
+    v = v_src[p]
+    if mask[p] > 0.0:
+        vi = velocity[0]
+        notaxis = wp.vec3(1.0, 1.0, 1.0) - axis
+        v = wp.cw_mul(axis, vi) + wp.cw_mul(notaxis, v)
+        x = _clamp_vec(wp.cw_mul(axis, x_in[p] + dt * vi) + wp.cw_mul(notaxis, x), x_min, x_max)
+    x_dst[p] = x
+    v_dst[p] = v
+
+
+@wp.kernel
+def _set_rotation_velocity(
+    mask: wp.array(dtype=float),
+    center: wp.vec3,
+    axis: wp.vec3,
+    omega: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # Before P2G: rigid rotation velocity omega * axis x (x - center).
+    p = wp.tid()
+    v = v_src[p]
+    if mask[p] > 0.0:
+        v = omega[0] * wp.cross(axis, x[p] - center)
+    v_dst[p] = v
+
+
+@wp.kernel
+def _impose_rotation(
+    mask: wp.array(dtype=float),
+    center: wp.vec3,
+    axis: wp.vec3,
+    omega: wp.array(dtype=float),
+    dt: float,
+    x_min: wp.vec3,
+    x_max: wp.vec3,
+    x_in: wp.array(dtype=wp.vec3),
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    C_src: wp.array(dtype=wp.mat33),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+    C_dst: wp.array(dtype=wp.mat33),
+):
+    # After G2P: exact rotation of x_in by angle omega*dt about the axis (Rodrigues, no
+    # radial drift), velocity omega axis x r at the new position, APIC C = the rigid
+    # velocity gradient omega [axis]_x.
+    p = wp.tid()
+    x = x_src[p]
+    v = v_src[p]
+    C = C_src[p]
+    if mask[p] > 0.0:
+        w = omega[0]
+        theta = w * dt
+        r = x_in[p] - center
+        c = wp.cos(theta)
+        s = wp.sin(theta)
+        r_new = c * r + s * wp.cross(axis, r) + ((1.0 - c) * wp.dot(axis, r)) * axis
+        x = _clamp_vec(center + r_new, x_min, x_max)
+        v = w * wp.cross(axis, r_new)
+        C = w * wp.skew(axis)
+    x_dst[p] = x
+    v_dst[p] = v
+    C_dst[p] = C
+
+
+@wp.kernel
+def _zero_frozen_velocity(
+    release_at: wp.array(dtype=float),
+    now: float,
+    v_src: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # Before P2G: particles not yet released (now < release_at) scatter no momentum.
+    p = wp.tid()
+    v = v_src[p]
+    if now < release_at[p]:
+        v = wp.vec3(0.0, 0.0, 0.0)
+    v_dst[p] = v
+
+
+@wp.kernel
+def _hold_frozen(
+    release_at: wp.array(dtype=float),
+    now: float,
+    x_in: wp.array(dtype=wp.vec3),
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    C_src: wp.array(dtype=wp.mat33),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+    C_dst: wp.array(dtype=wp.mat33),
+):
+    # After G2P: not-yet-released particles stay at x_in with v = 0 and C = 0 (so the
+    # next P2G's F_trial = F: no deformation either).
+    p = wp.tid()
+    x = x_src[p]
+    v = v_src[p]
+    C = C_src[p]
+    if now < release_at[p]:
+        x = x_in[p]
+        v = wp.vec3(0.0, 0.0, 0.0)
+        C = wp.mat33()
+    x_dst[p] = x
+    v_dst[p] = v
+    C_dst[p] = C
+
+
+@wp.kernel
+def _cut_particles(
+    mark: int,
+    use_box: int,
+    box_lo: wp.vec3,
+    box_hi: wp.vec3,
+    point: wp.vec3,
+    normal: wp.vec3,
+    x_in: wp.array(dtype=wp.vec3),
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    C_src: wp.array(dtype=wp.mat33),
+    active_src: wp.array(dtype=float),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+    C_dst: wp.array(dtype=wp.mat33),
+    active_dst: wp.array(dtype=float),
+):
+    # After G2P: particles inside the cut region (when `mark`) are removed for good;
+    # removed particles are held at x_in with v = C = 0 (they carry no mass, so G2P
+    # could otherwise carry them anywhere).
+    p = wp.tid()
+    act = active_src[p]
+    if mark != 0 and act > 0.0:
+        inside = False
+        if use_box != 0:
+            inside = _in_box(x_in[p], box_lo, box_hi, 0.0)
+        else:
+            inside = wp.dot(x_in[p] - point, normal) <= 0.0
+        if inside:
+            act = 0.0
+    x = x_src[p]
+    v = v_src[p]
+    C = C_src[p]
+    if act <= 0.0:
+        x = x_in[p]
+        v = wp.vec3(0.0, 0.0, 0.0)
+        C = wp.mat33()
+    active_dst[p] = act
+    x_dst[p] = x
+    v_dst[p] = v
+    C_dst[p] = C
