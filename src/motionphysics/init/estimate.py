@@ -1,0 +1,223 @@
+"""One entry point for material initialisation: ``estimate(prompt, image, backend)``.
+
+Backends: ``kb`` (offline default: the curated knowledge base and MiniLM),
+``llm`` (OpenAI-compatible chat model with the paper's ranged prompt), ``median``
+and ``naive`` (the paper's ablation baselines). Every backend returns a
+:class:`MaterialEstimate` whose values are physical (SI), inside the class ranges,
+with every clamp recorded. Inputs are checked here (prompt text, image) and bad
+ones raise :class:`~motionphysics.errors.UserInputError` with one line.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from motionphysics.errors import UserInputError
+from motionphysics.init.baselines import MedianKind, median_params
+from motionphysics.init.llm import LLMOptions, ask_material
+from motionphysics.materials.catalog import MATERIALS, Clamp, MaterialParams, normalise_class
+
+__all__ = [
+    "BACKENDS",
+    "MAX_PROMPT_CHARS",
+    "EstimateOptions",
+    "MaterialEstimate",
+    "estimate",
+    "estimate_many",
+    "check_prompt",
+    "load_image_png",
+]
+
+Backend = Literal["kb", "llm", "median", "naive"]
+BACKENDS: tuple[str, ...] = ("kb", "llm", "median", "naive")
+MAX_PROMPT_CHARS = 10_000
+"""Longest accepted prompt (a sentence or a paragraph, not a document)."""
+MAX_IMAGE_SIDE = 1024
+"""Reference images are downscaled to at most this many pixels per side before sending."""
+
+
+@dataclass(frozen=True)
+class EstimateOptions:
+    """Backend options (all optional)."""
+
+    llm: LLMOptions = LLMOptions()
+    """Server, model, key, timeout of the ``llm`` and ``naive`` backends."""
+    median: MedianKind = "arithmetic"
+    """Which median the ``median`` backend uses for log-scaled parameters."""
+    cls: str | None = None
+    """Force the class (``median`` backend; the ablation compares values, not classes)."""
+    announce: bool = True
+    """Say on stderr what is being loaded (the MiniLM model) on first use."""
+
+
+@dataclass(frozen=True)
+class MaterialEstimate:
+    """An initial material: class, density [kg/m^3], physical values (SI), provenance."""
+
+    cls: str
+    density: float
+    values: dict[str, float]
+    backend: str
+    confidence: float | None = None
+    """kb: softmax probability of the class; median: None; llm/naive: None (not reported)."""
+    clamped: list[Clamp] = field(default_factory=list)
+    raw_answer: str | None = None
+    """llm/naive: the model's reply text (both replies, separated, when re-asked)."""
+    matches: list[dict[str, Any]] = field(default_factory=list)
+    """kb: the top knowledge-base entries with their scores (the explanation)."""
+    prompt: str = ""
+    source: str | None = None
+    """kb: the source of the chosen entry's values."""
+
+    @property
+    def params(self) -> MaterialParams:
+        return MaterialParams(self.cls, self.density, dict(self.values))
+
+    def material_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"class": self.cls, "density": float(self.density)}
+        for name in MATERIALS[self.cls].names:
+            out[name] = float(self.values[name])
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"material": {"class", "density", <params>}, "backend", "confidence", ...}``."""
+        return {
+            "material": self.material_dict(),
+            "backend": self.backend,
+            "confidence": self.confidence,
+            "clamped": [c.to_dict() for c in self.clamped],
+            "raw_answer": self.raw_answer,
+            "matches": self.matches,
+            "source": self.source,
+            "prompt": self.prompt,
+        }
+
+    def to_json(self, indent: int | None = None) -> str:
+        return json.dumps(self.to_dict(), indent=indent)
+
+
+def check_prompt(prompt: Any, where: str = "prompt") -> str:
+    """The prompt, stripped; empty / too long / not text raise UserInputError."""
+    if not isinstance(prompt, str):
+        raise UserInputError(f"{where}: expected text, got {type(prompt).__name__}")
+    text = prompt.strip()
+    if not text:
+        raise UserInputError(f"{where}: empty; describe the object and its motion in a sentence")
+    if len(text) > MAX_PROMPT_CHARS:
+        raise UserInputError(
+            f"{where}: too long ({len(text)} characters; at most {MAX_PROMPT_CHARS})"
+        )
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UserInputError(f"{where}: not valid UTF-8 text") from None
+    if any(ord(ch) < 32 and ch not in "\t\n\r" for ch in text):
+        raise UserInputError(f"{where}: contains control characters")
+    return text
+
+
+def load_image_png(image: Any, where: str = "--image") -> bytes:
+    """A reference image as PNG bytes (RGB, at most 1024 px per side).
+
+    ``image``: a path (any format Pillow reads), raw image bytes, or an array
+    ``[H, W, 3]`` (uint8, or float in [0, 1]). Unreadable -> UserInputError.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        if isinstance(image, (str, Path)):
+            path = Path(image)
+            where = f"{where} {path}"
+            if not path.is_file():
+                raise UserInputError(f"{where}: file not found")
+            img = Image.open(path)
+            img.load()
+        elif isinstance(image, (bytes, bytearray)):
+            img = Image.open(io.BytesIO(bytes(image)))
+            img.load()
+        else:
+            import numpy as np
+
+            arr = np.asarray(image)
+            if arr.ndim != 3 or arr.shape[2] not in (3, 4) or arr.size == 0:
+                raise UserInputError(f"{where}: expected an image array [H, W, 3], got {arr.shape}")
+            if arr.dtype != np.uint8:
+                arr = (np.clip(arr.astype(np.float64), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+            img = Image.fromarray(arr)
+    except UserInputError:
+        raise
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
+        raise UserInputError(f"{where}: not a readable image ({type(err).__name__})") from None
+    img = img.convert("RGB")
+    if max(img.size) > MAX_IMAGE_SIDE:
+        img.thumbnail((MAX_IMAGE_SIDE, MAX_IMAGE_SIDE))
+    buf = io.BytesIO()
+    img.save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _check_backend(backend: str) -> str:
+    if backend not in BACKENDS:
+        raise UserInputError(f"--backend: expected one of {', '.join(BACKENDS)}, got {backend!r}")
+    return backend
+
+
+def _from_kb(match, prompt: str) -> MaterialEstimate:
+    e = match.entry
+    return MaterialEstimate(
+        cls=match.cls, density=e.density, values=dict(e.values), backend="kb",
+        confidence=round(match.confidence, 4), clamped=[], raw_answer=None,
+        matches=match.matches, prompt=prompt, source=f"{e.name}: {e.source}",
+    )
+
+
+def estimate(
+    prompt: str, image: Any = None, backend: Backend = "kb",
+    options: EstimateOptions | None = None,
+) -> MaterialEstimate:
+    """Estimate the material of ``prompt`` (and an optional reference render ``image``)."""
+    return estimate_many([prompt], image, backend, options)[0]
+
+
+def estimate_many(
+    prompts: list[str], image: Any = None, backend: Backend = "kb",
+    options: EstimateOptions | None = None,
+) -> list[MaterialEstimate]:
+    """Estimate several prompts in order (the kb model and embeddings load once)."""
+    opts = options or EstimateOptions()
+    backend = _check_backend(backend)
+    texts = [check_prompt(p) for p in prompts]
+    png = load_image_png(image) if image is not None else None
+    if backend == "kb":
+        from motionphysics.init.kb import get_matcher
+
+        matcher = get_matcher(announce=opts.announce)
+        return [_from_kb(m, p) for m, p in zip(matcher.match_many(texts), texts, strict=True)]
+    if backend == "median":
+        if opts.cls is not None:
+            classes = [normalise_class(opts.cls, field="--class")] * len(texts)
+        else:
+            from motionphysics.init.kb import get_matcher
+
+            classes = [m.cls for m in get_matcher(announce=opts.announce).match_many(texts)]
+        out = []
+        for cls, text in zip(classes, texts, strict=True):
+            p = median_params(cls, opts.median)
+            out.append(MaterialEstimate(cls, p.density, dict(p.values), "median", None, [], None,
+                                        [], text, f"{opts.median} median of the catalogue ranges"))
+        return out
+    out = []
+    for text in texts:
+        ans = ask_material(text, png, opts.llm, ranged=(backend == "llm"))
+        raw = ans.raw_answers[0] if len(ans.raw_answers) == 1 else (
+            "\n\n--- re-asked ---\n\n".join(ans.raw_answers))
+        out.append(MaterialEstimate(
+            ans.params.cls, ans.params.density, dict(ans.params.values), backend, None,
+            list(ans.clamped), raw, [], text,
+            "LLM answer" + (" with ranges" if backend == "llm" else " without ranges (naive)"),
+        ))
+    return out

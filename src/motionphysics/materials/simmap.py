@@ -1,0 +1,446 @@
+"""The one map between physical material values (SI) and simulation values.
+
+The explicit MLS-MPM solver is stable only while the fastest elastic wave crosses
+less than a fraction of a cell per substep (``c <= c_max = cfl * dx / dt``,
+``cfl = 0.4``) and the explicit viscous diffusion stays below its limit
+(``mu <= 0.5 * density * dx^2 / (6 dt)``); see CONTRACTS.md. Steel (E = 2e11 Pa,
+c ~ 5 km/s) cannot be integrated at the resolutions and time steps of a run of a
+few minutes, so this module compresses stiffness, and *only* this module: callers
+report both values, nothing else scales parameters.
+
+Rules, per parameter (``lo``/``hi`` = the class's handbook range from
+:mod:`~motionphysics.materials.catalog`; all maps are strictly monotone,
+continuous, invertible, and identity when the whole range is already stable):
+
+``nu``  (solids) identity below 0.45; ``[0.45, 0.5]`` is mapped linearly onto
+        ``[0.45, 0.49]`` so nearly incompressible solids (rubber, nu = 0.5) keep a
+        finite P-wave modulus: ``(1-nu)/((1+nu)(1-2nu))`` is 17 at 0.49, infinite
+        at 0.5.
+``E``   (elastic, plasticine, metal, foam) ``log E`` is mapped affinely from
+        ``[log lo, log hi]`` onto ``[log lo_sim, log cap]`` where
+        ``cap = min(hi, density * c_max^2 / M(nu_sim))`` is the largest stiffness
+        whose P-wave speed ``sqrt(E M(nu) / density)`` is ``c_max`` and
+        ``lo_sim = min(lo, max(cap * lo/hi, min(20 rho g L, cap/2)))``: keep the
+        class's full ratio hi/lo when it fits, else lift the softest member so it
+        still strains at most ~5 % under its own weight (20 rho g L), never closer
+        than a factor 2 to the cap so the order of materials inside the class
+        survives (rubber stays softer than steel).
+``tau_Y`` (plasticine, metal, foam) scaled by ``E_sim / E`` (``SimContext.yield_rule
+        = 'strain'``, the default): the yield strain
+        ``tau_Y / E`` is kept, so what bends permanently in reality bends in the
+        simulation at the same strain. Under an impact the elastic strain is
+        ``v / c``; with ``c`` compressed to ``c_max`` it grows by ``c / c_max``,
+        so the ratio of impact stress to yield stress grows by
+        ``sqrt(E / E_sim)``: metals are therefore mapped to the very top of the
+        stable range (the cap), where that factor is smallest. A drop keeps its
+        shape only if ``v / c_max`` stays below the yield strain: see
+        :func:`impact_to_yield` (the pipeline can raise substeps accordingly).
+        ``yield_rule = 'impact'`` scales ``tau_Y`` by ``c_sim / c`` instead,
+        keeping the impact-to-yield ratio (and not the yield strain). Both cannot
+        hold at once once ``E`` is compressed: ``rho c v / tau_Y`` and ``tau_Y / E``
+        fix ``c`` when ``rho`` and ``v`` are physical.
+``kappa`` (fluids) replaced by the weakly compressible value of SPH/MPM fluid
+        solvers: ``kappa_sim = kappa * s`` (order and the hi/lo ratio kept), ``s``
+        chosen so the sound speed ``sqrt(kappa_sim / density)`` at ``kappa = lo``
+        is ``10 * sqrt(2 g L)`` (density fluctuations ~ Ma^2 <= 1 %), capped so
+        the speed at ``kappa = hi`` is at most ``c_max`` (with ``g = 0``: at ``c_max``).
+``mu``  (fluids, dynamic viscosity) identity up to ``knee = cap_mu / 10`` with
+        ``cap_mu = min(hi, 0.5 * density * dx^2 / (6 dt))``; above the knee
+        ``log mu`` is mapped affinely from ``[log knee, log hi]`` onto
+        ``[log knee, log cap_mu]`` (water and oils pass through; honey-like
+        pastes are compressed at coarse time steps).
+``eta``, ``theta_fric`` (degrees), ``n``, ``density``, and the non-Newtonian
+        ``tau_Y`` (a yield stress that sets a mound height ``tau_Y/(rho g)``
+        against gravity, which is not compressed) pass through.
+
+Non-Newtonian (Herschel-Bulkley) simulation keys follow the constitutive model's
+arguments (``sim.constitutive.herschel_bulkley``), not the catalogue's names:
+``eta`` (sim) = the flow-rule consistency ``K`` [Pa s^n] = the catalogue's ``mu``
+(a viscosity, paper table 1e-3..1e3 Pa s), mapped with the viscosity rule above;
+``mu`` (sim) = the elastic shear modulus [Pa] of the unyielded paste =
+``eta * NN_SHEAR_FRACTION * kappa_sim``: the paper's unitless "plastic viscosity"
+``eta`` in [0.1, 1] is read as the stiffness of the unyielded state relative to
+the stable maximum (the only reading in which a unitless factor is meaningful;
+decided by the lead, see CONTRACTS.md). ``kappa_sim`` for this class is reduced by
+``1 + 4/3 NN_SHEAR_FRACTION`` so the P-wave speed ``sqrt((kappa + 4/3 mu)/rho)``
+stays within ``c_max``.
+
+Sand's Drucker-Prager return map needs an elastic predictor that the catalogue
+does not parameterise: the map adds derived ``E`` and ``nu = 0.3`` for sand with
+the P-wave speed ``min(c_max, 10 sqrt(2 g L))`` (a stiff, stable skeleton).
+
+Every function works on python floats and on torch tensors (scalars or
+per-particle ``[P]``), differentiably; ``SimContext`` fields are python floats.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from motionphysics.materials.catalog import MATERIALS, MaterialParams, normalise_class
+
+__all__ = [
+    "SimContext",
+    "physical_to_sim",
+    "sim_to_physical",
+    "p_wave_speed",
+    "p_wave_modulus_factor",
+    "impact_to_yield",
+    "NU_SIM_MAX",
+    "SAND_NU",
+]
+
+NU_KNEE = 0.45
+"""Poisson's ratios up to this pass through unchanged."""
+NU_SIM_MAX = 0.49
+"""Simulation Poisson's ratio of a physical 0.5 (incompressible)."""
+NU_PHYS_MAX = 0.5
+GRAVITY_STRAIN = 0.05
+"""Largest strain under own weight of the softest mapped solid of a class (when compressed)."""
+MIN_CLASS_RATIO = 2.0
+"""Smallest stiffness ratio kept between the stiffest and softest member of a class."""
+MACH_FACTOR = 10.0
+"""Fluid sound speed at kappa = lo, in units of the flow speed sqrt(2 g L)."""
+MU_KNEE_FACTOR = 10.0
+"""Viscosities below (viscosity limit / this) pass through unchanged."""
+SAND_NU = 0.3
+"""Poisson's ratio of sand's derived elastic predictor."""
+NN_SHEAR_FRACTION = 0.375
+"""Non-Newtonian: shear modulus of the unyielded paste at eta = 1, as a fraction of kappa_sim."""
+
+_SOLIDS = ("elastic", "plasticine", "metal", "foam")
+_YIELD_SCALED = ("plasticine", "metal", "foam")
+
+
+
+@dataclass(frozen=True)
+class SimContext:
+    """What the map needs to know about the simulation it feeds.
+
+    Built by the sim helper and the pipeline; with ``substeps: auto`` the pipeline
+    maps with ``dt = frame_dt / 512`` (CONTRACTS.md).
+    """
+
+    dx: float
+    """Grid spacing [m]."""
+    dt: float
+    """Substep [s]."""
+    density: float
+    """Mass density of the material being mapped [kg/m^3] (sets the wave-speed caps)."""
+    length: float
+    """Characteristic size of the simulated object [m] (longest side of its bounding box)."""
+    gravity: float = 9.8
+    """Magnitude of gravity [m/s^2] (sets the flow speed sqrt(2 g L) and own-weight stress)."""
+    cfl: float = 0.4
+    """Fraction of a cell the fastest wave may cross per substep."""
+    yield_rule: Literal["strain", "impact"] = "strain"
+    """How ``tau_Y`` of plasticine, metal and foam follows a compressed ``E``:
+    ``strain`` keeps the yield strain ``tau_Y / E`` (default); ``impact`` keeps the
+    ratio of elastic impact stress ``rho c v`` to yield stress (``tau_Y`` scaled by
+    ``c_sim / c``), so a dropped metal object rebounds instead of denting when the
+    time step forces a large stiffness compression."""
+
+    def __post_init__(self):
+        for name in ("dx", "dt", "density", "length"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"SimContext.{name} must be a positive finite number, got {v!r}")
+        if self.yield_rule not in ("strain", "impact"):
+            raise ValueError(f"SimContext.yield_rule must be 'strain' or 'impact', got {self.yield_rule!r}")
+        if not (self.gravity >= 0 and math.isfinite(self.gravity)):
+            raise ValueError(f"SimContext.gravity must be >= 0, got {self.gravity!r}")
+
+    @property
+    def c_max(self) -> float:
+        """Largest stable P-wave speed [m/s]: ``cfl * dx / dt``."""
+        return self.cfl * self.dx / self.dt
+
+    @property
+    def mu_max(self) -> float:
+        """Explicit viscosity limit [Pa s]: ``0.5 * density * dx^2 / (6 dt)``."""
+        return 0.5 * self.density * self.dx**2 / (6.0 * self.dt)
+
+    @property
+    def flow_speed(self) -> float:
+        """Characteristic flow / impact speed [m/s]: ``sqrt(2 g L)`` (free fall over L)."""
+        return math.sqrt(2.0 * self.gravity * self.length)
+
+
+# --- float / tensor neutral helpers -------------------------------------------------
+
+
+def _is_tensor(x: Any) -> bool:
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(x, torch.Tensor)
+
+
+def _like(x: Any, ref: Any):
+    import torch
+
+    return torch.as_tensor(x, dtype=ref.dtype, device=ref.device)
+
+
+def _log(x):
+    if _is_tensor(x):
+        import torch
+
+        return torch.log(x)
+    return math.log(x)
+
+
+def _exp(x):
+    if _is_tensor(x):
+        import torch
+
+        return torch.exp(x)
+    return math.exp(x)
+
+
+def _minimum(a, b):
+    if _is_tensor(a) or _is_tensor(b):
+        import torch
+
+        ref = a if _is_tensor(a) else b
+        return torch.minimum(_like(a, ref), _like(b, ref))
+    return min(a, b)
+
+
+def _maximum(a, b):
+    if _is_tensor(a) or _is_tensor(b):
+        import torch
+
+        ref = a if _is_tensor(a) else b
+        return torch.maximum(_like(a, ref), _like(b, ref))
+    return max(a, b)
+
+
+def _where(cond, a, b):
+    if _is_tensor(cond) or _is_tensor(a) or _is_tensor(b):
+        import torch
+
+        ref = next(x for x in (a, b, cond) if _is_tensor(x) and x.is_floating_point())
+        return torch.where(_like(cond, ref).bool() if not _is_tensor(cond) else cond,
+                           _like(a, ref), _like(b, ref))
+    return a if cond else b
+
+
+# --- the per-parameter maps ----------------------------------------------------------
+
+
+def _nu_to_sim(nu):
+    compressed = NU_KNEE + (nu - NU_KNEE) * ((NU_SIM_MAX - NU_KNEE) / (NU_PHYS_MAX - NU_KNEE))
+    return _where(nu <= NU_KNEE, nu, compressed)
+
+
+def _nu_from_sim(nu_sim):
+    expanded = NU_KNEE + (nu_sim - NU_KNEE) * ((NU_PHYS_MAX - NU_KNEE) / (NU_SIM_MAX - NU_KNEE))
+    return _where(nu_sim <= NU_KNEE, nu_sim, expanded)
+
+
+def p_wave_modulus_factor(nu):
+    """``M(nu) = (1-nu) / ((1+nu)(1-2nu))``: P-wave modulus ``lambda + 2 mu = E M(nu)``."""
+    return (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+def _E_bounds(cls: str, nu_sim, ctx: SimContext):
+    """(lo, hi, lo_sim, cap) of the log-affine stiffness map (cap may be a tensor)."""
+    ps = MATERIALS[cls].param("E")
+    lo, hi = ps.low, ps.high
+    cap_stable = ctx.density * ctx.c_max**2 / p_wave_modulus_factor(nu_sim)
+    cap = _minimum(cap_stable, hi)
+    own_weight = ctx.density * ctx.gravity * ctx.length / GRAVITY_STRAIN
+    lo_sim = _minimum(lo, _maximum(cap * (lo / hi), _minimum(own_weight, cap / MIN_CLASS_RATIO)))
+    return lo, hi, lo_sim, cap
+
+
+def _E_to_sim(cls, E, nu_sim, ctx):
+    lo, hi, lo_sim, cap = _E_bounds(cls, nu_sim, ctx)
+    t = (_log(E) - math.log(lo)) / (math.log(hi) - math.log(lo))
+    return _exp(_log(lo_sim) + t * (_log(cap) - _log(lo_sim)))
+
+
+def _E_from_sim(cls, E_sim, nu_sim, ctx):
+    lo, hi, lo_sim, cap = _E_bounds(cls, nu_sim, ctx)
+    t = (_log(E_sim) - _log(lo_sim)) / (_log(cap) - _log(lo_sim))
+    return _exp(math.log(lo) + t * (math.log(hi) - math.log(lo)))
+
+
+def _kappa_scale(cls: str, ctx: SimContext) -> float:
+    ps = MATERIALS[cls].param("kappa")
+    c_lo = MACH_FACTOR * ctx.flow_speed
+    kappa_hi_sim = ctx.density * ctx.c_max**2
+    if c_lo > 0:  # without gravity there is no flow-speed scale: use the stable maximum
+        kappa_hi_sim = min(kappa_hi_sim, ctx.density * c_lo**2 * ps.high / ps.low)
+    if cls == "non_newtonian":  # room for the shear modulus in the P-wave speed
+        kappa_hi_sim /= 1.0 + 4.0 / 3.0 * NN_SHEAR_FRACTION
+    return kappa_hi_sim / ps.high
+
+
+def _mu_bounds(cls: str, ctx: SimContext):
+    hi = MATERIALS[cls].param("mu").high
+    cap = min(ctx.mu_max, hi)
+    knee = cap / MU_KNEE_FACTOR
+    return hi, cap, knee
+
+
+def _mu_to_sim(cls, mu, ctx):
+    hi, cap, knee = _mu_bounds(cls, ctx)
+    slope = (math.log(cap) - math.log(knee)) / (math.log(hi) - math.log(knee))
+    compressed = _exp(math.log(knee) + (_log(mu) - math.log(knee)) * slope)
+    return _where(mu <= knee, mu, compressed)
+
+
+def _mu_from_sim(cls, mu_sim, ctx):
+    hi, cap, knee = _mu_bounds(cls, ctx)
+    slope = (math.log(cap) - math.log(knee)) / (math.log(hi) - math.log(knee))
+    expanded = _exp(math.log(knee) + (_log(mu_sim) - math.log(knee)) / slope)
+    return _where(mu_sim <= knee, mu_sim, expanded)
+
+
+def _yield_factor(E_sim, nu_sim, E, nu, ctx: SimContext):
+    """tau_Y_sim / tau_Y: E_sim/E (yield strain kept) or c_sim/c (impact ratio kept)."""
+    if ctx.yield_rule == "strain":
+        return E_sim / E
+    return ((E_sim * p_wave_modulus_factor(nu_sim)) / (E * p_wave_modulus_factor(nu))) ** 0.5
+
+
+def _sand_E(ctx: SimContext) -> float:
+    c = min(ctx.c_max, MACH_FACTOR * ctx.flow_speed) if ctx.flow_speed > 0 else ctx.c_max
+    return ctx.density * c**2 / p_wave_modulus_factor(SAND_NU)
+
+
+# --- public API ----------------------------------------------------------------------
+
+
+def _split(params: MaterialParams | Mapping[str, Any], cls: str | None):
+    if isinstance(params, MaterialParams):
+        return params.cls, dict(params.values), params.density
+    values = dict(params)
+    given = values.pop("class", None)
+    cls = cls if cls is not None else given
+    if cls is None:
+        raise ValueError("physical_to_sim: give a MaterialParams, a dict with 'class', or cls=")
+    density = values.pop("density", None)
+    return normalise_class(cls), values, density
+
+
+def physical_to_sim(
+    params: MaterialParams | Mapping[str, Any], ctx: SimContext, cls: str | None = None
+) -> dict[str, Any]:
+    """Simulation values of a material (floats or torch tensors, differentiable).
+
+    ``params``: a :class:`MaterialParams`, or a mapping of physical values (SI,
+    ``density`` optional; ``class`` optional, e.g. ``MaterialParams.to_dict()``)
+    together with ``cls`` when it has no ``class``; every parameter of the class is
+    needed except those with a default (``n``: left out, the simulator uses 1). Values should lie in the class's
+    ranges (validate first); outside them the maps extend monotonically but the
+    stability guarantee holds only inside.
+
+    Returns a dict with the class's parameter names, ``density`` (when known; passes
+    through) and, for sand, the derived ``E`` and ``nu``.
+    """
+    cls, values, density = _split(params, cls)
+    missing = [ps.name for ps in MATERIALS[cls].params
+               if ps.name not in values and ps.default is None]
+    if missing:
+        raise ValueError(f"physical_to_sim: class {cls} needs {', '.join(missing)}")
+    out: dict[str, Any] = {}
+    if cls in _SOLIDS:
+        nu_sim = _nu_to_sim(values["nu"])
+        E_sim = _E_to_sim(cls, values["E"], nu_sim, ctx)
+        out["E"] = E_sim
+        out["nu"] = nu_sim
+        if cls in _YIELD_SCALED:
+            out["tau_Y"] = values["tau_Y"] * _yield_factor(E_sim, nu_sim, values["E"], values["nu"], ctx)
+        if "eta" in values:
+            out["eta"] = values["eta"]
+    elif cls == "sand":
+        out["theta_fric"] = values["theta_fric"]
+        out["E"] = _sand_E(ctx)
+        out["nu"] = SAND_NU
+    elif cls == "newtonian":
+        out["mu"] = _mu_to_sim(cls, values["mu"], ctx)
+        out["kappa"] = values["kappa"] * _kappa_scale(cls, ctx)
+    else:  # non_newtonian: keys of the Herschel-Bulkley model (module docstring)
+        kappa_sim = values["kappa"] * _kappa_scale(cls, ctx)
+        out["kappa"] = kappa_sim
+        out["eta"] = _mu_to_sim(cls, values["mu"], ctx)
+        out["mu"] = values["eta"] * NN_SHEAR_FRACTION * kappa_sim
+        out["tau_Y"] = values["tau_Y"]
+        if "n" in values:
+            out["n"] = values["n"]
+    if density is not None:
+        out["density"] = density
+    return out
+
+
+def sim_to_physical(
+    sim_values: Mapping[str, Any], ctx: SimContext, cls: str | None = None
+) -> MaterialParams:
+    """Inverse of :func:`physical_to_sim` (derived sand ``E``/``nu`` are dropped).
+
+    ``cls`` may be omitted when ``sim_values`` carries a ``'class'`` key.
+    """
+    s = dict(sim_values)
+    given = s.pop("class", None)
+    if cls is None and given is None:
+        raise ValueError("sim_to_physical: give cls= (or a 'class' key)")
+    cls = normalise_class(cls if cls is not None else given)
+    density = s.pop("density", None)
+    out: dict[str, Any] = {}
+    if cls in _SOLIDS:
+        nu_sim = s["nu"]
+        E = _E_from_sim(cls, s["E"], nu_sim, ctx)
+        out["E"] = E
+        out["nu"] = _nu_from_sim(nu_sim)
+        if cls in _YIELD_SCALED:
+            out["tau_Y"] = s["tau_Y"] / _yield_factor(s["E"], nu_sim, E, out["nu"], ctx)
+        if cls == "foam":
+            out["eta"] = s["eta"]
+    elif cls == "sand":
+        out["theta_fric"] = s["theta_fric"]
+    elif cls == "newtonian":
+        out["mu"] = _mu_from_sim(cls, s["mu"], ctx)
+        out["kappa"] = s["kappa"] / _kappa_scale(cls, ctx)
+    else:
+        out["mu"] = _mu_from_sim(cls, s["eta"], ctx)
+        out["kappa"] = s["kappa"] / _kappa_scale(cls, ctx)
+        out["eta"] = s["mu"] / (NN_SHEAR_FRACTION * s["kappa"])
+        out["tau_Y"] = s["tau_Y"]
+        if "n" in s:
+            out["n"] = s["n"]
+    return MaterialParams(cls, density, out)
+
+
+def p_wave_speed(cls: str, sim_values: Mapping[str, Any], density: Any = None):
+    """Fastest elastic wave speed [m/s] of mapped values: what the CFL limit bounds.
+
+    Solids and sand: ``sqrt(E M(nu) / density)``; Newtonian: ``sqrt(kappa / density)``;
+    non-Newtonian: ``sqrt((kappa + 4/3 mu) / density)`` (sim keys).
+    ``density`` defaults to ``sim_values['density']``.
+    """
+    cls = normalise_class(cls)
+    rho = sim_values["density"] if density is None else density
+    if cls == "newtonian":
+        modulus = sim_values["kappa"]
+    elif cls == "non_newtonian":
+        modulus = sim_values["kappa"] + 4.0 / 3.0 * sim_values["mu"]
+    else:
+        modulus = sim_values["E"] * p_wave_modulus_factor(sim_values["nu"])
+    ratio = modulus / rho
+    return ratio**0.5
+
+
+def impact_to_yield(sim_values: Mapping[str, Any], speed: float, density: Any = None):
+    """Ratio of the elastic impact stress ``rho c v`` to the yield stress, in sim units.
+
+    Below ~1 a solid hitting the ground at ``speed`` [m/s] rebounds elastically and
+    keeps its shape; above it yields. Solids with ``tau_Y`` only.
+    """
+    rho = sim_values["density"] if density is None else density
+    c = (sim_values["E"] * p_wave_modulus_factor(sim_values["nu"]) / rho) ** 0.5
+    return rho * c * speed / sim_values["tau_Y"]
