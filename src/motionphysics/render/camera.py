@@ -1,0 +1,257 @@
+"""Pinhole cameras: orbit presets, run-config cameras, INRIA ``cameras.json``.
+
+Conventions (CONTRACTS.md): the world is z-up; camera space is OpenCV (x right,
+y down, z forward). A camera-space point ``(x, y, z)`` lands on the continuous pixel
+coordinate ``(u, v) = (fx x / z + cx, fy y / z + cy)``; the centre of pixel column
+``i`` / row ``j`` sits at ``(i + 0.5, j + 0.5)`` (gsplat's convention), so the image
+centre of a ``W x H`` image is ``(W / 2, H / 2)``.
+
+This module only builds cameras; it does not render and imports no heavy packages
+beyond torch.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from motionphysics.errors import UserInputError
+
+__all__ = [
+    "Camera",
+    "orbit_camera",
+    "camera_from_config",
+    "load_inria_cameras",
+    "frame_bounds",
+]
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera.
+
+    Attributes:
+        world_to_cam: rigid transform world -> camera (OpenCV axes), ``[4, 4]``
+            float64 tensor, last row ``[0, 0, 0, 1]``.
+        fx, fy: focal lengths [pixels].
+        cx, cy: principal point [pixels] (continuous coordinates, see module doc).
+        width, height: image size [pixels].
+    """
+
+    world_to_cam: torch.Tensor
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    @property
+    def rotation(self) -> torch.Tensor:
+        """World -> camera rotation ``[3, 3]`` float64 (rows: camera right, down, forward)."""
+        return self.world_to_cam[:3, :3]
+
+    @property
+    def translation(self) -> torch.Tensor:
+        """World -> camera translation ``[3]`` float64 [m]."""
+        return self.world_to_cam[:3, 3]
+
+    @property
+    def position(self) -> torch.Tensor:
+        """Camera centre in world coordinates ``[3]`` float64 [m]."""
+        return -self.rotation.T @ self.translation
+
+    @property
+    def cam_to_world(self) -> torch.Tensor:
+        """Inverse of :attr:`world_to_cam`, ``[4, 4]`` float64."""
+        out = torch.eye(4, dtype=torch.float64)
+        out[:3, :3] = self.rotation.T
+        out[:3, 3] = self.position
+        return out
+
+    @property
+    def K(self) -> torch.Tensor:  # noqa: N802 (the usual name)
+        """Intrinsics matrix ``[3, 3]`` float64."""
+        return torch.tensor(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=torch.float64
+        )
+
+    def world_to_camera_points(self, points: torch.Tensor) -> torch.Tensor:
+        """World points ``[..., 3]`` -> camera-space points ``[..., 3]`` (same dtype)."""
+        R = self.rotation.to(points)
+        t = self.translation.to(points)
+        return points @ R.T + t
+
+    def project(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """World points ``[..., 3]`` -> (pixel coordinates ``[..., 2]``, depth ``[..., 1]``).
+
+        Depth is the camera-space z [m]; points behind the camera get meaningless pixels.
+        """
+        pc = self.world_to_camera_points(points)
+        z = pc[..., 2:3]
+        u = self.fx * pc[..., 0:1] / z + self.cx
+        v = self.fy * pc[..., 1:2] / z + self.cy
+        return torch.cat([u, v], dim=-1), z
+
+    def resized(self, width: int, height: int) -> Camera:
+        """Same view at another image size (intrinsics scaled per axis)."""
+        sx, sy = width / self.width, height / self.height
+        return Camera(self.world_to_cam, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
+                      int(width), int(height))
+
+
+def _look_at_matrix(position: torch.Tensor, right: torch.Tensor, forward: torch.Tensor) -> torch.Tensor:
+    down = torch.linalg.cross(forward, right)
+    R = torch.stack([right, down, forward])  # rows: camera axes in world coordinates
+    out = torch.eye(4, dtype=torch.float64)
+    out[:3, :3] = R
+    out[:3, 3] = -R @ position
+    return out
+
+
+def _check_size(width: int, height: int, where: str) -> None:
+    if int(width) < 1 or int(height) < 1:
+        raise UserInputError(f"{where}: image width and height must be positive, got {width}x{height}")
+
+
+def orbit_camera(
+    azimuth: float,
+    elevation: float,
+    radius: float,
+    look_at: Sequence[float] = (0.0, 0.0, 0.0),
+    fov: float = 45.0,
+    width: int = 256,
+    height: int = 256,
+    up: Sequence[float] = (0.0, 0.0, 1.0),
+) -> Camera:
+    """A camera on a sphere around ``look_at``, looking at it, with ``up`` up in the image.
+
+    Args:
+        azimuth: degrees, counter-clockwise about ``up`` from the +x axis (from the
+            axis of the world's x projected on the plane normal to ``up`` when ``up``
+            is not z).
+        elevation: degrees above the plane normal to ``up`` (+-90 look straight down/up;
+            the image's "up" then follows the azimuth).
+        radius: distance from ``look_at`` [m], > 0.
+        look_at: the point looked at, world coordinates [m].
+        fov: vertical field of view [degrees], in (0, 180).
+        width, height: image size [pixels]. Square pixels: ``fx == fy``.
+        up: world up direction (need not be unit).
+    """
+    if not radius > 0:
+        raise UserInputError(f"camera.radius: expected a positive distance, got {radius}")
+    if not 0 < fov < 180:
+        raise UserInputError(f"camera.fov: expected degrees in (0, 180), got {fov}")
+    _check_size(width, height, "camera")
+    u = torch.tensor(up, dtype=torch.float64)
+    if u.shape != (3,) or float(u.norm()) == 0.0:
+        raise UserInputError(f"camera.up: expected a non-zero 3-vector, got {list(up)}")
+    u = u / u.norm()
+    # In-plane basis (e1, e2, u), right-handed; e1 = world x projected on the plane.
+    e1 = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    if abs(float(e1 @ u)) > 0.99:
+        e1 = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)
+    e1 = e1 - (e1 @ u) * u
+    e1 = e1 / e1.norm()
+    e2 = torch.linalg.cross(u, e1)
+    az, el = math.radians(azimuth), math.radians(elevation)
+    target = torch.tensor(look_at, dtype=torch.float64)
+    direction = math.cos(el) * (math.cos(az) * e1 + math.sin(az) * e2) + math.sin(el) * u
+    position = target + radius * direction
+    forward = -direction
+    # forward x up, written so that it stays defined at elevation +-90 degrees.
+    right = -math.sin(az) * e1 + math.cos(az) * e2
+    fy = 0.5 * height / math.tan(math.radians(fov) / 2)
+    return Camera(_look_at_matrix(position, right, forward), fy, fy, width / 2.0, height / 2.0,
+                  int(width), int(height))
+
+
+def frame_bounds(
+    lo: Sequence[float],
+    hi: Sequence[float],
+    azimuth: float = 30.0,
+    elevation: float = 20.0,
+    fov: float = 45.0,
+    width: int = 256,
+    height: int = 256,
+    margin: float = 1.1,
+    radius: float | None = None,
+) -> Camera:
+    """An orbit camera looking at the centre of a box, far enough to see all of it.
+
+    The box's bounding sphere (times ``margin``) fits inside the narrower of the two
+    fields of view. ``radius`` overrides the computed distance.
+    """
+    lo_t = torch.tensor(lo, dtype=torch.float64)
+    hi_t = torch.tensor(hi, dtype=torch.float64)
+    centre = 0.5 * (lo_t + hi_t)
+    r_sphere = max(float(0.5 * (hi_t - lo_t).norm()), 1e-6) * margin
+    half_v = math.radians(fov) / 2
+    half_h = math.atan(math.tan(half_v) * width / height)
+    if radius is None:
+        radius = r_sphere / math.sin(min(half_v, half_h))
+    return orbit_camera(azimuth, elevation, radius, centre.tolist(), fov, width, height)
+
+
+def load_inria_cameras(path: str | Path) -> list[Camera]:
+    """Read an INRIA 3DGS ``cameras.json``.
+
+    Each entry has ``id, img_name, width, height, position [3], rotation [3][3], fx, fy``
+    where ``rotation`` is the camera-to-world rotation (its columns are the camera's
+    OpenCV axes in world coordinates) and ``position`` the camera centre [m]. The
+    principal point is the image centre.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UserInputError(f"{path}: cameras.json not found")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise UserInputError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(data, list) or not data:
+        raise UserInputError(f"{path}: expected a non-empty JSON list of cameras")
+    cams = []
+    for i, entry in enumerate(data):
+        where = f"{path}: camera [{i}]"
+        try:
+            width, height = int(entry["width"]), int(entry["height"])
+            pos = torch.tensor(entry["position"], dtype=torch.float64)
+            c2w = torch.tensor(entry["rotation"], dtype=torch.float64)
+            fx, fy = float(entry["fx"]), float(entry["fy"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise UserInputError(
+                f"{where}: expected fields width, height, position[3], rotation[3][3], fx, fy ({err!r})"
+            ) from None
+        if pos.shape != (3,) or c2w.shape != (3, 3):
+            raise UserInputError(f"{where}: position must be [3] and rotation [3][3]")
+        _check_size(width, height, where)
+        if not torch.allclose(c2w @ c2w.T, torch.eye(3, dtype=torch.float64), atol=1e-4):
+            raise UserInputError(f"{where}: rotation is not orthonormal")
+        w2c = torch.eye(4, dtype=torch.float64)
+        w2c[:3, :3] = c2w.T
+        w2c[:3, 3] = -c2w.T @ pos
+        cams.append(Camera(w2c, fx, fy, width / 2.0, height / 2.0, width, height))
+    return cams
+
+
+def camera_from_config(cfg) -> Camera:
+    """The camera of a run config's ``camera`` section (:class:`~motionphysics.config.CameraConfig`).
+
+    With ``cameras_json`` set, view ``camera_index`` of that file (resized to the
+    config's width and height); otherwise the orbit preset.
+    """
+    if cfg.cameras_json:
+        cams = load_inria_cameras(cfg.cameras_json)
+        if not 0 <= cfg.camera_index < len(cams):
+            raise UserInputError(
+                f"camera.camera_index: expected 0..{len(cams) - 1} for {cfg.cameras_json}, "
+                f"got {cfg.camera_index}"
+            )
+        return cams[cfg.camera_index].resized(cfg.width, cfg.height)
+    return orbit_camera(cfg.azimuth, cfg.elevation, cfg.radius, cfg.look_at, cfg.fov,
+                        cfg.width, cfg.height)
