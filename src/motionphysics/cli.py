@@ -23,6 +23,12 @@ COMMANDS = [
     "scenes",
     "render",
     "bench",
+    "demo",
+    "run",
+    "simulate",
+    "fit",
+    "eval",
+    "init",
 ]
 
 

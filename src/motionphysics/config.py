@@ -173,10 +173,12 @@ class SurfaceCollider(_BCBase):
     normal: Vec3 = (0.0, 0.0, 1.0)
     """Plane normal, pointing into the free side."""
     mode: Literal["sticky", "slip", "frictional", "cut"] = "frictional"
-    friction: float = Field(0.3, ge=0)
-    """Coulomb friction coefficient (frictional mode)."""
+    friction: float | None = Field(None, ge=0)
+    """Coulomb friction coefficient of the frictional mode (absent: 0.3); must be 0 or
+    absent with sticky (null in a resolved config means absent)."""
     box: Box | None = None
-    """For ``cut``: the region whose material is removed/damped."""
+    """For ``cut``: the region whose material is removed and whose grid velocity is damped
+    (without a box: the half-space behind the plane)."""
     damping: float = Field(1.0, ge=0, le=1)
     """For ``cut``: fraction of velocity removed per substep inside the region."""
 
@@ -242,9 +244,10 @@ class ForceParticlesRotation(_ForceBase):
 class ReleaseParticles(_ForceBase):
     type: Literal["release_particles"]
     layers: int = Field(1, ge=1)
-    """Selected particles are frozen and released in this many layers over the window."""
+    """Selected particles are frozen (held in place, v = 0) from t = 0 and released in this
+    many equal-width layers: layer l (0 = highest) at ``start + (l + 1) (end - start) / layers``."""
     release_axis: Literal["x", "y", "z"] = "z"
-    """Layers are ordered along this axis, highest released first? see sim docs."""
+    """Axis the layers are stacked along; the layer with the largest coordinate goes first."""
 
 
 Force = Annotated[
@@ -274,6 +277,9 @@ class CameraConfig(_Strict):
     cameras_json: str | None = None
     """Optional INRIA cameras.json; with it, ``camera_index`` picks the view."""
     camera_index: int = 0
+    show_ground: bool = True
+    """Draw the ground (the highest upward-facing surface collider) as a grey checker floor
+    in the video and the reference image; render only, never simulated."""
 
 
 class OptimizeConfig(_Strict):
@@ -296,6 +302,14 @@ class OptimizeConfig(_Strict):
     """Parameters to optimise (default: all of the class's parameters, density excluded)."""
     tolerance: float = Field(1e-4, ge=0)
     """Stop early when the relative change of theta stays below this for 3 iterations."""
+    per_particle: list[str] = []
+    """Parameters optimised as per-particle fields instead of scene-wide values."""
+    initial_velocity: bool = False
+    """Also optimise ``sim.initial_velocity`` (its rate: ``lr_per_param.initial_velocity``)."""
+    ssim_weight: float = Field(0.2, ge=0, le=1)
+    """video_match: weight w of ``(1 - SSIM)`` in ``(1 - w) L1 + w (1 - SSIM)``."""
+    trajectory_metric: Literal["l2", "chamfer"] = "l2"
+    """trajectory_match: ``l2`` (corresponding particles) or ``chamfer`` (point sets)."""
 
 
 class RunConfig(_Strict):

@@ -263,6 +263,10 @@ def _selection(entry, x0: np.ndarray, where: str) -> np.ndarray:
 # ------------------------------------------------------------------------ operations
 
 
+DEFAULT_COLLIDER_FRICTION = 0.3
+"""Coulomb coefficient of a frictional ``surface_collider`` that gives none."""
+
+
 @dataclass
 class _GridOp:
     where: str
@@ -409,11 +413,12 @@ class BoundaryProgram:
                 return
             if bc.box is not None:
                 raise UserInputError(f"{where}.box: only the 'cut' mode takes a box (mode is {bc.mode!r})")
-            if bc.mode == "sticky" and "friction" in bc.model_fields_set and bc.friction != 0:
+            if bc.mode == "sticky" and bc.friction not in (None, 0.0):
                 raise UserInputError(f"{where}.friction: must be 0 (or absent) with mode 'sticky'")
             param = None
             if bc.mode == "frictional":
-                param = self._new_param(f"{where}.friction", float(bc.friction), "-")
+                friction = DEFAULT_COLLIDER_FRICTION if bc.friction is None else float(bc.friction)
+                param = self._new_param(f"{where}.friction", friction, "-")
             self._grid_ops.append(_GridOp(where, win, bc.mode, geo, param))
         else:  # pragma: no cover - the config's discriminated union admits nothing else
             raise UserInputError(f"{where}.type: unknown boundary condition {type(bc).__name__}")

@@ -1,0 +1,168 @@
+"""Synthetic system-identification cases: can ``fit`` recover known parameters?
+
+Each :class:`Case` simulates a tiny scene (a ball thrown at the ground) with known
+"true" parameters, then fits a copy of the config that starts far from them (a factor
+of 5 in the simulation value of stiffness, yield stress or viscosity) to that
+reference trajectory. Used by the recovery tests (fast sizes) and by
+``benchmarks/bench_sysid.py`` (``full`` sizes, and ``full`` versus ``last_substep``
+gradients) whose numbers are in BENCHMARKS.md.
+
+What is compared: the *simulation* values (what the motion determines; the sim map of
+:mod:`motionphysics.materials.simmap` compresses stiffness) and, for parameters the
+map passes through or scales linearly (nu, tau_Y at fixed E, mu below the knee,
+theta_fric), the physical values, which are then equal in relative terms.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+__all__ = ["CASES", "Case", "case_config", "run_case"]
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    cls: str
+    true: dict[str, float]
+    """True physical values (density included)."""
+    params: tuple[str, ...]
+    """Optimised names."""
+    start: dict[str, float] = field(default_factory=dict)
+    """Starting physical values of some optimised names."""
+    start_sim_factor: dict[str, float] = field(default_factory=dict)
+    """Start at this multiple of the true *simulation* value (mapped back to physical)."""
+    tolerance: dict[str, tuple[Literal["rel", "abs"], float]] = field(default_factory=dict)
+    """Per name: relative or absolute tolerance on the recovered simulation value."""
+    lr: float = 0.15
+    lr_per_param: dict[str, float] = field(default_factory=dict)
+    iterations: int = 30
+
+
+CASES: dict[str, Case] = {
+    c.name: c
+    for c in (
+        Case("elastic", "elastic", {"density": 1000.0, "E": 2.0e8, "nu": 0.3}, ("E", "nu"),
+             start={"nu": 0.22}, start_sim_factor={"E": 5.0},
+             tolerance={"E": ("rel", 0.10), "nu": ("abs", 0.05)}, lr=0.2,
+             # nu's gradient is small but Adam steps every coordinate at its rate; a slower
+             # rate keeps nu from drifting while the (nu-dependent) stiffness cap adjusts.
+             lr_per_param={"nu": 0.04}),
+        Case("metal", "metal", {"density": 7800.0, "E": 2.0e11, "nu": 0.3, "tau_Y": 2.0e8},
+             ("tau_Y",), start_sim_factor={"tau_Y": 0.2}, tolerance={"tau_Y": ("rel", 0.20)},
+             iterations=24),
+        Case("newtonian", "newtonian", {"density": 1000.0, "mu": 2.0, "kappa": 2.0e9}, ("mu",),
+             start_sim_factor={"mu": 0.2}, tolerance={"mu": ("rel", 0.20)}, iterations=24),
+        Case("sand", "sand", {"density": 1600.0, "theta_fric": 35.0}, ("theta_fric",),
+             start={"theta_fric": 29.5}, tolerance={"theta_fric": ("abs", 3.0)}, iterations=16),
+    )
+}
+
+SIZES = {
+    # particles, grid cells, frames, substeps per frame
+    "fast": {"max_particles": 300, "grid": 12, "frames": 6, "substeps": 16},
+    "full": {"max_particles": 1200, "grid": 16, "frames": 10, "substeps": 24},
+}
+
+
+def case_config(case: Case, material: dict[str, float], size: str = "fast", **optimize: Any) -> dict:
+    """Run-config mapping of ``case`` with the given physical ``material``."""
+    s = SIZES[size]
+    return {
+        "scene": {"source": "builtin:sphere", "scale": 1.0, "translate": [0, 0, 0.56],
+                  "max_particles": s["max_particles"]},
+        "material": {"class": case.cls, **material},
+        "sim": {"grid": s["grid"], "frames": s["frames"], "frame_dt": 0.04,
+                "substeps": s["substeps"], "initial_velocity": [0.0, 0.0, -2.0]},
+        "boundary_conditions": [
+            {"type": "surface_collider", "point": [0, 0, 0], "normal": [0, 0, 1],
+             "mode": "frictional", "friction": 0.4},
+            {"type": "bounding_box"},
+        ],
+        "camera": {"width": 48, "height": 48},
+        "optimize": {"params": list(case.params), "boost": 3,
+                     "lr": case.lr, "lr_per_param": dict(case.lr_per_param),
+                     "iterations": case.iterations, "warmup": 2, **optimize},
+    }
+
+
+def _error(kind: str, got: float, want: float) -> float:
+    return abs(got - want) / abs(want) if kind == "rel" else abs(got - want)
+
+
+def run_case(case: Case | str, out_dir: str | Path, *, size: str = "fast",
+             grad_mode: str = "full", iterations: int | None = None) -> dict[str, Any]:
+    """Make the reference, fit from the far start, and report what was recovered.
+
+    Returns a dict: true / start / final physical and simulation values, the error and
+    tolerance of each optimised name (on simulation values), ``ok``, iterations run,
+    ``iterations_to_tolerance`` (first iteration from which every later one is within
+    tolerance, None if never), seconds per iteration and the stop reason.
+    """
+    import numpy as np
+
+    from motionphysics.commands.fit import Reference, build_fit, prepare_simulation
+    from motionphysics.config import config_from_dict
+    from motionphysics.materials.simmap import physical_to_sim, sim_to_physical
+    from motionphysics.optimize.loop import optimize
+
+    case = CASES[case] if isinstance(case, str) else case
+    extra = {"grad_mode": grad_mode}
+    if iterations is not None:
+        extra["iterations"] = int(iterations)
+    true_cfg = config_from_dict(case_config(case, case.true, size, **extra), f"sysid:{case.name}")
+    parts = prepare_simulation(true_cfg, requires_grad=False)
+    xs, _ = parts.simulation.run()
+    digest = hashlib.sha256(np.ascontiguousarray(xs).tobytes()).hexdigest()
+    reference = Reference("trajectory", xs, f"synthetic:{case.name}", digest)
+    ctx = parts.sim_context
+    true_sim = {k: float(v) for k, v in physical_to_sim(case.true, ctx, cls=case.cls).items()}
+
+    start = dict(case.true)
+    start.update(case.start)
+    if case.start_sim_factor:
+        sim_start = {k: float(v) for k, v in physical_to_sim(start, ctx, cls=case.cls).items()}
+        for k, f in case.start_sim_factor.items():
+            sim_start[k] = true_sim[k] * f
+        back = sim_to_physical(sim_start, ctx, case.cls)
+        for k in case.start_sim_factor:
+            start[k] = float(back.values[k])
+    cfg = config_from_dict(case_config(case, start, size, **extra), f"sysid:{case.name}")
+    setup = build_fit(cfg, reference)
+    t0 = time.perf_counter()
+    res = optimize(setup.problem, cfg.optimize, out_dir)
+    seconds = time.perf_counter() - t0
+
+    errors, ok = {}, True
+    for name, (kind, tol) in case.tolerance.items():
+        err = _error(kind, float(res.sim_params[name]), true_sim[name])
+        errors[name] = {"kind": kind, "error": err, "tolerance": tol}
+        ok = ok and err <= tol
+    to_tol = None
+    for rec in res.history:
+        within = all(_error(kind, float(rec["sim_params"][n]), true_sim[n]) <= tol
+                     for n, (kind, tol) in case.tolerance.items())
+        if within and to_tol is None:
+            to_tol = rec["iteration"]
+        elif not within:
+            to_tol = None
+    if not ok:
+        to_tol = None
+    start_sim = {k: float(v) for k, v in physical_to_sim(start, ctx, cls=case.cls).items()}
+    return {
+        "case": case.name, "size": size, "grad_mode": grad_mode,
+        "particles": int(parts.simulation.model.particle_count),
+        "substeps": int(parts.simulation.substeps), "frames": int(true_cfg.sim.frames),
+        "true": dict(case.true), "true_sim": true_sim,
+        "start": {k: start[k] for k in case.params}, "start_sim": {k: start_sim[k] for k in case.params},
+        "final": {k: res.params[k] for k in case.params},
+        "final_sim": {k: res.sim_params[k] for k in case.params},
+        "errors": errors, "ok": ok,
+        "iterations": res.iterations, "iterations_to_tolerance": to_tol,
+        "seconds_per_iteration": seconds / max(1, res.iterations),
+        "stop_reason": res.stop_reason,
+    }

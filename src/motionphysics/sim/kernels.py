@@ -1,0 +1,380 @@
+"""Warp kernels of the MLS-MPM substep (private; the solver launches them).
+
+One substep (Hu et al. 2018, MLS-MPM with APIC transfers and quadratic B-splines):
+
+1. ``STRESS_KERNELS[class]``: per particle of that class, F_trial = (I + dt C) F, the material's return map and
+   Kirchhoff stress (``constitutive.constitutive``) and the affine matrix
+   ``m C - dt V 4/dx^2 tau``; ``_p2g``: scatter of mass and affine momentum
+   ``m v + affine (x_i - x_p)`` to the 27 stencil nodes.
+   Particles may be split into chunks that each scatter into a PRIVATE grid (leading
+   grid dimension), so chunks can run on separate CPU threads without atomics racing.
+2. ``_grid_update``: sum the private grids, v_i = mv_i / m_i + dt g (nodes with mass).
+   Private grids are region-sized vec4 arrays (momentum xyz, mass w: one atomic per
+   node) covering the particles' stencils; the node velocity grid is full-sized.
+3. ``_g2p``: gather velocity and the APIC matrix C = 4/dx^2 sum w v_i (x_i - x_p)^T,
+   advect x, clamp x to stay at least 2 cells inside the grid.
+
+Grid node (i, j, k) sits at ``lo + (i, j, k) dx``. Stencil base indices are clamped
+to [0, n - 3], so no kernel ever reads or writes outside the grid arrays on any device.
+Grid kernels take the region's index offset and run over the active region (the
+nodes the particles' stencils touch) only.
+"""
+
+from __future__ import annotations
+
+from motionphysics.runtime import init_warp
+from motionphysics.sim.constitutive import MODELS
+
+wp = init_warp()
+
+GRID_MASS_EPS = wp.constant(1.0e-12)
+"""Nodes with less mass [kg, sim units] than this are treated as empty."""
+
+
+@wp.func
+def _stencil(x: wp.vec3, lo: wp.vec3, inv_dx: float, dims: wp.vec3i):
+    """Base node and fractional offset of the quadratic B-spline stencil of x."""
+    gx = (x - lo) * inv_dx
+    b0 = wp.clamp(int(wp.floor(gx[0] - 0.5)), 0, dims[0] - 3)
+    b1 = wp.clamp(int(wp.floor(gx[1] - 0.5)), 0, dims[1] - 3)
+    b2 = wp.clamp(int(wp.floor(gx[2] - 0.5)), 0, dims[2] - 3)
+    base = wp.vec3i(b0, b1, b2)
+    fx = gx - wp.vec3(float(b0), float(b1), float(b2))
+    return base, fx
+
+
+@wp.func
+def _weights(fx: wp.vec3):
+    """Quadratic B-spline weights; row r holds the weights of node base + r per axis."""
+    a = wp.vec3(1.5, 1.5, 1.5) - fx
+    b = fx - wp.vec3(1.0, 1.0, 1.0)
+    c = fx - wp.vec3(0.5, 0.5, 0.5)
+    w0 = 0.5 * wp.cw_mul(a, a)
+    w1 = wp.vec3(0.75, 0.75, 0.75) - wp.cw_mul(b, b)
+    w2 = 0.5 * wp.cw_mul(c, c)
+    return wp.mat33(w0[0], w0[1], w0[2], w1[0], w1[1], w1[2], w2[0], w2[1], w2[2])
+
+
+def _make_stress_kernel(cls_id: int):
+    model = MODELS[cls_id]
+
+    def _stress(
+        C: wp.array(dtype=wp.mat33),
+        F: wp.array(dtype=wp.mat33),
+        ep: wp.array(dtype=float),
+        active: wp.array(dtype=float),
+        volume: wp.array(dtype=float),
+        density: wp.array(dtype=float),
+        material_class: wp.array(dtype=wp.int32),
+        E: wp.array(dtype=float),
+        nu: wp.array(dtype=float),
+        tau_Y: wp.array(dtype=float),
+        eta: wp.array(dtype=float),
+        theta_fric: wp.array(dtype=float),
+        mu: wp.array(dtype=float),
+        kappa: wp.array(dtype=float),
+        n_hb: wp.array(dtype=float),
+        dx: float,
+        dt: float,
+        p_offset: int,
+        F_out: wp.array(dtype=wp.mat33),
+        ep_out: wp.array(dtype=float),
+        affine_out: wp.array(dtype=wp.mat33),
+    ):
+        # Per particle of this class: F_trial = (I + dt C) F, return map and Kirchhoff
+        # stress, and the APIC affine matrix m C - dt V 4/dx^2 tau that P2G scatters.
+        # Particles of other classes are left to their own class's kernel.
+        p = wp.tid() + p_offset
+        if material_class[p] == cls_id:
+            inv_dx = 1.0 / dx
+            Cp = C[p]
+            F_trial = (wp.identity(n=3, dtype=float) + dt * Cp) * F[p]
+            Fe, ep_new, tau = model(
+                F_trial, Cp, ep[p], dt,
+                E[p], nu[p], tau_Y[p], eta[p], theta_fric[p], mu[p], kappa[p], n_hb[p],
+            )
+            F_out[p] = Fe
+            ep_out[p] = ep_new
+            vol = volume[p] * active[p]
+            affine_out[p] = (-dt * vol * 4.0 * inv_dx * inv_dx) * tau + (density[p] * vol) * Cp
+
+    _stress.__name__ = f"_stress_{cls_id}"
+    _stress.__qualname__ = f"_stress_{cls_id}"
+    return wp.kernel(_stress)
+
+
+STRESS_KERNELS = tuple(_make_stress_kernel(c) for c in range(len(MODELS)))
+"""One stress kernel per material class (``STRESS_KERNELS[class_id]``), same arguments."""
+
+
+@wp.kernel
+def _p2g(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    affine: wp.array(dtype=wp.mat33),
+    active: wp.array(dtype=float),
+    volume: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+    lo: wp.vec3,
+    dx: float,
+    dims: wp.vec3i,
+    p_offset: int,
+    chunk: int,
+    off: wp.vec3i,
+    grid_mv: wp.array4d(dtype=wp.vec4),
+):
+    # Scatter of mass and APIC momentum m v + affine (x_i - x_p) to the 27 stencil nodes.
+    p = wp.tid() + p_offset
+    inv_dx = 1.0 / dx
+    m = density[p] * volume[p] * active[p]
+    A = affine[p]
+    mv = m * v[p]
+    base, fx = _stencil(x[p], lo, inv_dx, dims)
+    r = base - off  # index into the region-sized grid
+    w = _weights(fx)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                weight = w[i, 0] * w[j, 1] * w[k, 2]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
+                q = weight * (mv + A * dpos)
+                # one atomic per node: momentum in xyz, mass in w
+                wp.atomic_add(grid_mv, chunk, r[0] + i, r[1] + j, r[2] + k, wp.vec4(q[0], q[1], q[2], weight * m))
+
+
+@wp.kernel
+def _grid_update(
+    grid_mv: wp.array4d(dtype=wp.vec4),
+    chunks: int,
+    gravity: wp.vec3,
+    dt: float,
+    off: wp.vec3i,
+    grid_v: wp.array3d(dtype=wp.vec3),
+):
+    # Launched over the region; grid_mv is region-sized, grid_v full-sized.
+    i, j, k = wp.tid()
+    q = grid_mv[0, i, j, k]
+    if chunks > 1:
+        q = q + grid_mv[1, i, j, k]
+    m = q[3]
+    out = wp.vec3(0.0, 0.0, 0.0)
+    if m > GRID_MASS_EPS:
+        out = wp.vec3(q[0], q[1], q[2]) / m + dt * gravity
+    grid_v[i + off[0], j + off[1], k + off[2]] = out
+
+
+@wp.kernel
+def _bounds(x: wp.array(dtype=wp.vec3), count: int, out: wp.array(dtype=wp.vec3)):
+    # Bounding box of all particle positions (one thread; ~1 ns per particle, no atomics).
+    lo = x[0]
+    hi = x[0]
+    for p in range(1, count):
+        lo = wp.min(lo, x[p])
+        hi = wp.max(hi, x[p])
+    out[0] = lo
+    out[1] = hi
+
+
+@wp.kernel
+def _g2p(
+    x: wp.array(dtype=wp.vec3),
+    grid_v: wp.array3d(dtype=wp.vec3),
+    lo: wp.vec3,
+    dx: float,
+    dt: float,
+    dims: wp.vec3i,
+    x_min: wp.vec3,
+    x_max: wp.vec3,
+    p_offset: int,
+    x_out: wp.array(dtype=wp.vec3),
+    v_out: wp.array(dtype=wp.vec3),
+    C_out: wp.array(dtype=wp.mat33),
+):
+    p = wp.tid() + p_offset
+    inv_dx = 1.0 / dx
+    base, fx = _stencil(x[p], lo, inv_dx, dims)
+    w = _weights(fx)
+    v_new = wp.vec3(0.0, 0.0, 0.0)
+    B = wp.mat33()
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                weight = w[i, 0] * w[j, 1] * w[k, 2]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
+                gv = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                v_new = v_new + weight * gv
+                B = B + weight * wp.outer(gv, dpos)
+    xn = x[p] + dt * v_new
+    xn = wp.vec3(
+        wp.clamp(xn[0], x_min[0], x_max[0]),
+        wp.clamp(xn[1], x_min[1], x_max[1]),
+        wp.clamp(xn[2], x_min[2], x_max[2]),
+    )
+    x_out[p] = xn
+    v_out[p] = v_new
+    C_out[p] = (4.0 * inv_dx * inv_dx) * B
+
+
+@wp.func
+def _dweights(fx: wp.vec3):
+    """d(weights)/d(fx), same layout as :func:`_weights`."""
+    d0 = fx - wp.vec3(1.5, 1.5, 1.5)
+    d1 = -2.0 * (fx - wp.vec3(1.0, 1.0, 1.0))
+    d2 = fx - wp.vec3(0.5, 0.5, 0.5)
+    return wp.mat33(d0[0], d0[1], d0[2], d1[0], d1[1], d1[2], d2[0], d2[1], d2[2])
+
+
+@wp.kernel
+def _g2p_adjoint(
+    x: wp.array(dtype=wp.vec3),
+    grid_v: wp.array3d(dtype=wp.vec3),
+    lo: wp.vec3,
+    dx: float,
+    dt: float,
+    dims: wp.vec3i,
+    x_min: wp.vec3,
+    x_max: wp.vec3,
+    p_offset: int,
+    adj_x_out: wp.array(dtype=wp.vec3),
+    adj_v_out: wp.array(dtype=wp.vec3),
+    adj_C_out: wp.array(dtype=wp.mat33),
+    adj_x: wp.array(dtype=wp.vec3),
+    adj_grid_v: wp.array3d(dtype=wp.vec3),
+):
+    # Hand-written adjoint of _g2p (Warp's generated one replays and stores all 27 stencil
+    # terms and is ~6x the forward). With W = w0[i] w1[j] w2[k], dpos = (ijk - fx) dx:
+    # v = sum W g, B = sum W g dpos^T, C = 4/dx^2 B, x_out = clamp(x + dt v).
+    #   a_g += W (a_v + a_B dpos);  a_x += grad W (g.a_v + g.a_B dpos) - W a_B^T g + a_xo.
+    # Output adjoints are consumed (zeroed), as in Warp's generated adjoints.
+    p = wp.tid() + p_offset
+    inv_dx = 1.0 / dx
+    base, fx = _stencil(x[p], lo, inv_dx, dims)
+    w = _weights(fx)
+    dw = _dweights(fx)
+    v_new = wp.vec3(0.0, 0.0, 0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                v_new = v_new + (w[i, 0] * w[j, 1] * w[k, 2]) * grid_v[base[0] + i, base[1] + j, base[2] + k]
+    xn = x[p] + dt * v_new
+    axo = adj_x_out[p]
+    # clamp passes the adjoint only where it is inactive
+    ax0 = wp.where(xn[0] >= x_min[0] and xn[0] <= x_max[0], axo[0], 0.0)
+    ax1 = wp.where(xn[1] >= x_min[1] and xn[1] <= x_max[1], axo[1], 0.0)
+    ax2 = wp.where(xn[2] >= x_min[2] and xn[2] <= x_max[2], axo[2], 0.0)
+    a_xn = wp.vec3(ax0, ax1, ax2)
+    a_v = adj_v_out[p] + dt * a_xn
+    a_B = (4.0 * inv_dx * inv_dx) * adj_C_out[p]
+    a_x = a_xn
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                W = w[i, 0] * w[j, 1] * w[k, 2]
+                gradW = wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2],
+                                w[i, 0] * w[j, 1] * dw[k, 2]) * inv_dx
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
+                g = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                Bd = a_B * dpos
+                wp.atomic_add(adj_grid_v, base[0] + i, base[1] + j, base[2] + k, W * (a_v + Bd))
+                a_x = a_x + gradW * (wp.dot(g, a_v) + wp.dot(g, Bd)) - W * (wp.transpose(a_B) * g)
+    adj_x[p] = adj_x[p] + a_x
+    adj_x_out[p] = wp.vec3(0.0, 0.0, 0.0)
+    adj_v_out[p] = wp.vec3(0.0, 0.0, 0.0)
+    adj_C_out[p] = wp.mat33()
+
+
+@wp.kernel
+def _p2g_adjoint(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    affine: wp.array(dtype=wp.mat33),
+    active: wp.array(dtype=float),
+    volume: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+    lo: wp.vec3,
+    dx: float,
+    dims: wp.vec3i,
+    p_offset: int,
+    chunk: int,
+    off: wp.vec3i,
+    adj_grid_mv: wp.array4d(dtype=wp.vec4),
+    adj_x: wp.array(dtype=wp.vec3),
+    adj_v: wp.array(dtype=wp.vec3),
+    adj_affine: wp.array(dtype=wp.mat33),
+    adj_density: wp.array(dtype=float),
+):
+    # Hand-written adjoint of _p2g. Node n gets q_n = W (m v + A dpos) (xyz) and W m (w),
+    # dpos = (ijk - fx) dx, m = density volume active. With node adjoints (a_q, a_m):
+    #   a_v += m sum W a_q;  a_A += sum W a_q dpos^T;  a_mass += sum W (a_q.v + a_m);
+    #   a_x += sum grad W (a_q.(m v + A dpos) + a_m m) - W A^T a_q.
+    p = wp.tid() + p_offset
+    inv_dx = 1.0 / dx
+    vol = volume[p] * active[p]
+    m = density[p] * vol
+    A = affine[p]
+    vp = v[p]
+    mv = m * vp
+    base, fx = _stencil(x[p], lo, inv_dx, dims)
+    r = base - off
+    w = _weights(fx)
+    dw = _dweights(fx)
+    a_x = wp.vec3(0.0, 0.0, 0.0)
+    a_v = wp.vec3(0.0, 0.0, 0.0)
+    a_A = wp.mat33()
+    a_mass = float(0.0)  # noqa: UP018  (a Warp variable mutated in the loop)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                W = w[i, 0] * w[j, 1] * w[k, 2]
+                gradW = wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2],
+                                w[i, 0] * w[j, 1] * dw[k, 2]) * inv_dx
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
+                aq4 = adj_grid_mv[chunk, r[0] + i, r[1] + j, r[2] + k]
+                aq = wp.vec3(aq4[0], aq4[1], aq4[2])
+                a_v = a_v + W * aq
+                a_A = a_A + W * wp.outer(aq, dpos)
+                a_mass = a_mass + W * (wp.dot(aq, vp) + aq4[3])
+                a_x = a_x + gradW * (wp.dot(aq, mv + A * dpos) + aq4[3] * m) - W * (wp.transpose(A) * aq)
+    adj_x[p] = adj_x[p] + a_x
+    adj_v[p] = adj_v[p] + m * a_v
+    adj_affine[p] = adj_affine[p] + a_A
+    adj_density[p] = adj_density[p] + a_mass * vol
+
+
+@wp.kernel
+def _copy_state(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    C: wp.array(dtype=wp.mat33),
+    F: wp.array(dtype=wp.mat33),
+    ep: wp.array(dtype=float),
+    x_out: wp.array(dtype=wp.vec3),
+    v_out: wp.array(dtype=wp.vec3),
+    C_out: wp.array(dtype=wp.mat33),
+    F_out: wp.array(dtype=wp.mat33),
+    ep_out: wp.array(dtype=float),
+):
+    # A differentiable state copy (recorded on a tape, the adjoint flows back).
+    p = wp.tid()
+    x_out[p] = x[p]
+    v_out[p] = v[p]
+    C_out[p] = C[p]
+    F_out[p] = F[p]
+    ep_out[p] = ep[p]
+
+
+@wp.kernel
+def _add_vec3_3d(src: wp.array3d(dtype=wp.vec3), dst: wp.array3d(dtype=wp.vec3)):
+    # dst += src (sums the chunks' private adjoint grids; never recorded on a tape)
+    i, j, k = wp.tid()
+    dst[i, j, k] = dst[i, j, k] + src[i, j, k]
+
+
+@wp.kernel
+def _max_speed_sq(v: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+    # Reduction used by the per-frame divergence check (forward only, never taped).
+    p = wp.tid()
+    s = wp.dot(v[p], v[p])
+    if wp.isnan(s) or wp.isinf(s):
+        s = 1.0e30
+    wp.atomic_max(out, 0, s)

@@ -1,0 +1,315 @@
+"""Frame rollouts with bounded-memory gradients (checkpointing) and truncated modes.
+
+Forward (:meth:`Rollout.forward`): runs ``substeps`` solver steps per frame without a
+tape, checks every frame for NaN / runaway velocities (:class:`SimulationError` naming
+the frame and the CFL number), and stores one state checkpoint per frame boundary
+(P x 100 bytes each).
+
+Backward (:meth:`Rollout.backward`), given adjoints of the loss with respect to x, v,
+F at chosen frames:
+
+- ``full``: for each frame segment, last first, recompute the segment from its
+  checkpoint under a ``wp.Tape`` (one state and one grid per substep) and propagate
+  the state adjoint through it. When a segment's tape would exceed ``tape_memory``,
+  its substep states are recomputed without a tape and each substep is re-recorded on
+  its own tape in reverse (one grid in memory, one extra forward pass). Memory is
+  independent of the number of frames either way.
+- ``window``: for each supervised frame, gradients flow through its last ``window``
+  substeps only; the state before them is treated as constant.
+- ``last_substep``: ``window`` with one substep (the paper's truncated mode).
+
+Gradients accumulate into the ``.grad`` buffers of the model's parameter arrays (and
+of any boundary arrays recorded by the hooks); the adjoint of the initial state is
+returned (its ``v`` is the initial-velocity gradient).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from motionphysics.errors import SimulationError
+from motionphysics.runtime import init_warp
+from motionphysics.sim.solver import Solver, cfl_number
+from motionphysics.sim.state import State
+
+GradMode = Literal["full", "window", "last_substep"]
+
+RUNAWAY_CELLS_PER_SUBSTEP = 1.0
+"""A particle faster than this many cells per substep (v dt / dx) means divergence."""
+
+
+@dataclass
+class RolloutResult:
+    """Host copies of the frames of one rollout (frame 0 is the initial state).
+
+    Attributes:
+        xs: positions [m], shape (T, P, 3), float32.
+        Fs: deformation gradients [-], shape (T, P, 3, 3), float32.
+        vs: velocities [m/s], shape (T, P, 3), float32, or None when not asked for.
+    """
+
+    xs: np.ndarray
+    Fs: np.ndarray
+    vs: np.ndarray | None = None
+
+
+class Rollout:
+    """Runs frames of a :class:`Solver` and back-propagates losses on them."""
+
+    def __init__(self, solver: Solver, substeps: int, frame_dt: float, tape_memory: int = 5 << 28):
+        """``tape_memory`` [bytes]: largest tape recorded at once in backward (see
+        :meth:`_backward_span`); spans that need more use the step-wise recomputation."""
+        if substeps < 1:
+            raise ValueError("substeps must be >= 1")
+        self.wp = init_warp()
+        self.solver = solver
+        self.model = solver.model
+        self.substeps = int(substeps)
+        self.frame_dt = float(frame_dt)
+        self.dt = self.frame_dt / self.substeps
+        self.tape_memory = int(tape_memory)
+        self.checkpoints: list[State] = []
+        self._owner: Any = None  # the bridge call whose forward produced the checkpoints
+
+    # ----------------------------------------------------------------- forward
+    def _substep(self, state_in: State, state_out: State, k: int, grid=None) -> None:
+        self.solver.step(state_in, state_out, self.dt, t=k * self.dt, substep=k, grid=grid)
+
+    def check(self, state: State, frame: int) -> None:
+        """Raise :class:`SimulationError` when ``state`` has NaN/Inf or runaway velocities."""
+        speed = self.solver.max_speed(state)
+        limit = RUNAWAY_CELLS_PER_SUBSTEP * self.model.dx / self.dt
+        if not np.isfinite(speed) or speed > limit:
+            cfl = cfl_number(self.model, self.model.dx, self.dt)
+            what = "NaN/Inf values" if not np.isfinite(speed) else f"runaway velocity {speed:.3g} m/s"
+            raise SimulationError(
+                f"simulation diverged at frame {frame} ({what}); likely cause: the time step is too "
+                f"large for the stiffness (CFL number max wave speed * dt / dx = {cfl:.3g} with "
+                f"dt = {self.dt:.3g} s, dx = {self.model.dx:.3g} m; keep it below ~0.4): use more "
+                "substeps (sim.substeps: auto), a softer material, or a coarser grid"
+            )
+
+    def forward(self, state0: State, num_frames: int, keep_velocities: bool = False,
+                keep_checkpoints: bool = True, check: bool = True) -> RolloutResult:
+        """Run ``num_frames - 1`` frames from ``state0`` (left unchanged); frame 0 = ``state0``."""
+        if num_frames < 1:
+            raise ValueError("num_frames must be >= 1")
+        p = self.model.particle_count
+        xs = np.empty((num_frames, p, 3), np.float32)
+        Fs = np.empty((num_frames, p, 3, 3), np.float32)
+        vs = np.empty((num_frames, p, 3), np.float32) if keep_velocities else None
+        self._owner = None
+        a = state0.clone(requires_grad=False)
+        b = State.zeros(p, self.model.device)
+        self.checkpoints = [a.clone()] if keep_checkpoints else []
+
+        def record(f: int, s: State) -> None:
+            xs[f] = s.x.numpy()
+            Fs[f] = s.F.numpy()
+            if vs is not None:
+                vs[f] = s.v.numpy()
+
+        record(0, a)
+        for f in range(1, num_frames):
+            for s in range(self.substeps):
+                self._substep(a, b, (f - 1) * self.substeps + s)
+                a, b = b, a
+            if check:
+                self.check(a, f)
+            if keep_checkpoints:
+                self.checkpoints.append(a.clone())
+            record(f, a)
+        return RolloutResult(xs, Fs, vs)
+
+    # ---------------------------------------------------------------- backward
+    def _span_bytes(self, n: int, k0: int) -> int:
+        """Estimated memory [bytes] of recording substeps k0 .. k0+n-1 on one tape: per substep
+        a full node-velocity grid, the region-sized vec4 grids (the particles' current region,
+        x1.5 for growth), the state and the affine matrices, values and adjoints."""
+        m = self.model
+        nodes = int(np.prod(m.grid_dims))
+        region = nodes
+        c = k0 // self.substeps
+        if c < len(self.checkpoints):
+            _, shape = self.solver._region(self.checkpoints[c])
+            region = min(nodes, int(1.5 * np.prod(shape)))
+        state = m.particle_count * (12 + 12 + 36 + 36 + 4 + 4 + 36)
+        grid = nodes * 12 + region * 16 * self.solver.chunks
+        return 2 * n * (grid + state)
+
+    def _backward_span(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
+        """Propagate the adjoint ``adj`` of the state at substep k1 to substep k0 (in place).
+
+        When the span's tape fits ``tape_memory`` the span is recomputed ONCE under one tape
+        (one grid and state per substep); otherwise its substep states are recomputed without
+        a tape and each substep is re-recorded on its own tape (one grid in memory).
+        """
+        n = k1 - k0
+        if self._span_bytes(n, k0) <= self.tape_memory:
+            self._backward_span_taped(k0, k1, adj, ctx)
+        else:
+            self._backward_span_stepwise(k0, k1, adj, ctx)
+
+    def _start_state(self, k0: int, out: State, ctx: dict[str, Any]) -> None:
+        """Write the state at global substep k0 into ``out`` (from the nearest checkpoint)."""
+        S = self.substeps
+        c = k0 // S
+        if c >= len(self.checkpoints):
+            raise RuntimeError("Rollout.backward needs the checkpoints of a forward() run")
+        out.assign(self.checkpoints[c])
+        k = c * S
+        if k < k0:
+            work, scratch = ctx["work"], ctx["scratch"]
+            work.assign(out)
+            while k < k0:
+                self._substep(work, scratch, k)
+                work, scratch = scratch, work
+                k += 1
+            out.assign(work)
+
+    def _backward_span_taped(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
+        wp = self.wp
+        n = k1 - k0
+        p = self.model.particle_count
+        states = ctx.setdefault("tstates", [])
+        grids = ctx.setdefault("tgrids", [])
+        while len(states) < n + 1:
+            states.append(State.zeros(p, self.model.device, requires_grad=True))
+        while len(grids) < n:
+            grids.append(self.solver.make_grid(requires_grad=True))
+        self._start_state(k0, states[0], ctx)
+        for s in states[: n + 1]:
+            s.zero_grad()
+        for g in grids[:n]:
+            g.zero_grad()
+        tape = wp.Tape()
+        with tape:
+            for i in range(n):
+                self._substep(states[i], states[i + 1], k0 + i, grid=grids[i])
+        for f in State.FIELDS:
+            wp.copy(getattr(states[n], f).grad, getattr(adj, f))
+        tape.backward()
+        for f in State.FIELDS:
+            wp.copy(getattr(adj, f), getattr(states[0], f).grad)
+        # Drop the tape without reset(): reset() would zero the parameters' gradients.
+        tape.launches = []
+        for g in grids[:n]:
+            g.mv = None  # region grids are reallocated per recording
+
+    def _backward_span_stepwise(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
+        wp = self.wp
+        n = k1 - k0
+        p = self.model.particle_count
+        pool = ctx.setdefault("pool", [])
+        while len(pool) < n:
+            pool.append(State.zeros(p, self.model.device))
+        # substep states k0 .. k1-1, recomputed without a tape (before each step's hooks)
+        self._start_state(k0, pool[0], ctx)
+        work, scratch = ctx["work"], ctx["scratch"]
+        for i in range(1, n):
+            work.assign(pool[i - 1])
+            self._substep(work, scratch, k0 + i - 1)
+            pool[i].assign(scratch)
+        sin, sout = ctx["sin"], ctx["sout"]
+        grid = ctx.setdefault("grid", self.solver.make_grid(requires_grad=True))
+        for i in reversed(range(n)):
+            sin.assign(pool[i])
+            sin.zero_grad()
+            grid.zero_grad()
+            tape = wp.Tape()
+            with tape:
+                self._substep(sin, sout, k0 + i, grid=grid)
+            for f in State.FIELDS:
+                wp.copy(getattr(sout, f).grad, getattr(adj, f))
+            tape.backward()
+            for f in State.FIELDS:
+                wp.copy(getattr(adj, f), getattr(sin, f).grad)
+            tape.launches = []
+
+    def backward(
+        self,
+        adjoints: dict[int, dict[str, Any]],
+        grad_mode: GradMode = "full",
+        window: int = 8,
+    ) -> State:
+        """Back-propagate frame adjoints; returns the adjoint of the initial state.
+
+        ``adjoints[f]`` maps ``'x'``, ``'v'`` (P, 3) and/or ``'F'`` (P, 3, 3) to dL/d(that
+        field at frame f) (numpy / torch / wp arrays). Parameter gradients ACCUMULATE into
+        the ``.grad`` buffers of ``model.params`` (zero them first, ``model.zero_grad()``).
+        """
+        m = self.model
+        p = m.particle_count
+        S = self.substeps
+        if grad_mode not in ("full", "window", "last_substep"):
+            raise ValueError(f"grad_mode must be full, window or last_substep, got {grad_mode!r}")
+        frames = sorted(f for f in adjoints if f > 0)
+        adj0 = State.zeros(p, m.device)
+        for f in [f for f in adjoints if f == 0]:
+            _add_adjoint(adj0, adjoints[f])
+        if not frames:
+            return adj0
+        if frames[-1] >= len(self.checkpoints):
+            raise ValueError(f"adjoint given for frame {frames[-1]} beyond the forward run")
+        span = S if grad_mode == "full" else (1 if grad_mode == "last_substep" else int(window))
+        if span < 1:
+            raise ValueError("window must be >= 1")
+        ctx = {
+            "work": State.zeros(p, m.device),
+            "scratch": State.zeros(p, m.device),
+            "sin": State.zeros(p, m.device, requires_grad=True),
+            "sout": State.zeros(p, m.device, requires_grad=True),
+        }
+        if grad_mode == "full":
+            adj = State.zeros(p, m.device)
+            for f in range(frames[-1], 0, -1):
+                if f in adjoints:
+                    _add_adjoint(adj, adjoints[f])
+                self._backward_span((f - 1) * S, f * S, adj, ctx)
+            _add_state(adj0, adj)
+            return adj0
+        for f in frames:
+            adj = State.zeros(p, m.device)
+            _add_adjoint(adj, adjoints[f])
+            k1 = f * S
+            k0 = max(0, k1 - span)
+            self._backward_span(k0, k1, adj, ctx)
+            if k0 == 0:
+                _add_state(adj0, adj)
+        return adj0
+
+
+def _to_wp(value: Any, dtype, device: str):
+    wp = init_warp()
+    if isinstance(value, wp.array):
+        return value
+    if hasattr(value, "detach"):
+        value = value.detach().cpu().numpy()
+    return wp.array(np.ascontiguousarray(value, dtype=np.float32), dtype=dtype, device=device)
+
+
+def _add_adjoint(adj: State, fields: dict[str, Any]) -> None:
+    wp = init_warp()
+    types = {"x": wp.vec3, "v": wp.vec3, "F": wp.mat33, "C": wp.mat33, "ep": float}
+    for name, value in fields.items():
+        if value is None:
+            continue
+        if name not in types:
+            raise ValueError(f"unknown adjoint field {name!r}; expected x, v, F, C or ep")
+        src = _to_wp(value, types[name], adj.x.device)
+        _axpy(getattr(adj, name), src)
+
+
+def _add_state(dst: State, src: State) -> None:
+    for f in State.FIELDS:
+        _axpy(getattr(dst, f), getattr(src, f))
+
+
+def _axpy(dst, src) -> None:
+    # dst += src for same-shaped warp arrays (host round trip; adjoint sizes are small).
+    wp = init_warp()
+    out = dst.numpy() + src.numpy().reshape(dst.numpy().shape)
+    dst.assign(wp.array(out, dtype=dst.dtype, device=dst.device))

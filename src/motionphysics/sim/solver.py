@@ -1,0 +1,418 @@
+"""MLS-MPM solver: ``Solver.step(state_in, state_out, dt)`` and time-step selection.
+
+The solver validates and launches the kernels of :mod:`.kernels` (one code path for
+``cpu`` and ``cuda``), owns the grid scratch, and calls the boundary hooks of
+``model.boundary`` (CONTRACTS.md) each substep:
+``apply_pre_p2g(model, state_in, ...)`` → P2G → grid update → ``apply_grid(model,
+grid_v, ...)`` → G2P → ``apply_post_g2p(model, state_in, state_out, ...)``.
+
+Every launch is recorded on an active ``wp.Tape``, so a step is differentiable with
+respect to ``state_in`` and the model's parameter arrays. A tape needs the grid
+arrays of each recorded substep intact until its backward pass: pass ``grid=`` (one
+:class:`Grid` per recorded substep, what :mod:`.rollout` does). The transfers P2G and
+G2P record hand-written adjoint kernels (``kernels._p2g_adjoint`` / ``_g2p_adjoint``,
+checked against finite differences in tests/sim/test_kernels.py) because Warp's
+generated adjoints of the 27-node stencil loops cost 2-6x their forward; the
+constitutive kernel uses Warp's generated adjoint (SVD included).
+
+On CPU, Warp runs a launch on one thread; with ``SolverConfig.threads = 2`` the
+particles are split in two chunks launched from Python threads (ctypes releases the
+GIL), each scattering into a PRIVATE grid, summed by the grid update. Grid kernels on
+CPU run over the particles' bounding box only (the active region).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from motionphysics.runtime import init_warp
+from motionphysics.sim import kernels as _k
+from motionphysics.sim.model import Model
+from motionphysics.sim.state import State
+
+DEFAULT_CFL = 0.4
+
+
+def _active_tape():
+    import warp._src.context as ctx  # the tape Warp is recording on, if any
+
+    return ctx.runtime.tape
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """Options of :class:`Solver`."""
+
+    threads: int | None = None
+    """CPU only: particle chunks run on this many threads (1 or 2; None: 2 when the
+    machine has 2+ cores and there are at least ``min_particles_per_thread`` per chunk)."""
+    min_particles_per_thread: int = 2048
+    """Below this many particles per chunk, threading costs more than it saves."""
+    active_region: bool = True
+    """CPU only: zero and update only the grid nodes around the particles' bounding box."""
+
+
+@dataclass
+class Grid:
+    """Grid scratch of one substep.
+
+    Attributes:
+        velocity: node velocity after the grid update [m/s], shape (nx, ny, nz), dtype
+            vec3 (full grid; what ``BoundaryProgram.apply_grid`` edits). Only nodes of the
+            active region are written in a substep; G2P reads only those.
+        mv: node momentum [kg m/s] (xyz) and mass [kg] (w) of the active region, shape
+            (chunks, rx, ry, rz), dtype vec4, one private grid per particle chunk (summed
+            by the grid update); set by :meth:`Solver.step`, None before the first step.
+        offset: grid index of ``mv[:, 0, 0, 0]``, (3,) ints.
+    """
+
+    velocity: Any
+    mv: Any = None
+    offset: tuple[int, int, int] = (0, 0, 0)
+    requires_grad: bool = False
+
+    def zero_grad(self) -> None:
+        for a in (self.velocity, self.mv):
+            if a is not None and a.grad is not None:
+                a.grad.zero_()
+
+    def nbytes(self) -> int:
+        n = self.velocity.capacity
+        if self.mv is not None:
+            n += self.mv.capacity
+        return n * (2 if self.requires_grad else 1)
+
+
+class Solver:
+    """Explicit MLS-MPM integrator over a :class:`Model`."""
+
+    def __init__(self, model: Model, config: SolverConfig | None = None):
+        self.wp = init_warp()
+        self.model = model
+        self.config = config or SolverConfig()
+        self.device = self.wp.get_device(model.device)
+        threads = self.config.threads
+        if threads is None:
+            threads = 2 if (os.cpu_count() or 1) >= 2 else 1
+            if model.particle_count < 2 * self.config.min_particles_per_thread:
+                threads = 1
+        self.chunks = 1 if not self.device.is_cpu else max(1, min(2, int(threads)))
+        p = model.particle_count
+        half = (p + 1) // 2
+        self._ranges = [(0, p)] if self.chunks == 1 else [(0, half), (half, p - half)]
+        self._pool = ThreadPoolExecutor(max_workers=2) if self.chunks > 1 else None
+        self.grid = self.make_grid()
+        wp = self.wp
+        dims = model.grid_dims
+        lo = np.asarray(model.domain_lo, dtype=np.float64)
+        self._lo = wp.vec3(*lo)
+        self._dims = wp.vec3i(*dims)
+        self._x_min = wp.vec3(*(lo + 2.0 * model.dx))
+        self._x_max = wp.vec3(*(lo + (np.asarray(dims) - 3.0) * model.dx))
+        self._gravity = wp.vec3(*model.gravity)
+        self._bounds = wp.zeros(2, dtype=wp.vec3, device=model.device)
+        self.classes = tuple(int(c) for c in np.unique(model.material_class.numpy()))
+        """Material class ids present (one stress kernel launch each)."""
+
+    def make_grid(self, requires_grad: bool = False) -> Grid:
+        """Fresh grid scratch (zeroed); pass one per recorded substep to :meth:`step` under a tape."""
+        wp = self.wp
+        v = wp.zeros(self.model.grid_dims, dtype=wp.vec3, device=self.model.device, requires_grad=requires_grad)
+        return Grid(velocity=v, requires_grad=requires_grad)
+
+    def _region(self, state: State) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+        """(offset, shape) of the grid nodes the particles' stencils touch (+1 node margin)."""
+        wp = self.wp
+        dims = np.asarray(self.model.grid_dims)
+        if not (self.device.is_cpu and self.config.active_region):
+            return (0, 0, 0), tuple(int(d) for d in dims)
+        wp.launch(_k._bounds, dim=1, inputs=[state.x, state.particle_count], outputs=[self._bounds],
+                  device=self.model.device, record_tape=False)
+        b = self._bounds.numpy().astype(np.float64)
+        g = (b - np.asarray(self.model.domain_lo)) / self.model.dx
+        if not np.all(np.isfinite(g)):
+            return (0, 0, 0), tuple(int(d) for d in dims)
+        # the kernels' stencil base is clamp(floor(g - 0.5), 0, n - 3); +-1 node for round-off
+        lo = np.clip(np.floor(g[0] - 0.5), 0, dims - 3).astype(np.int64) - 1
+        hi = np.clip(np.floor(g[1] - 0.5), 0, dims - 3).astype(np.int64) + 3
+        lo = np.maximum(lo, 0)
+        hi = np.minimum(hi, dims - 1)
+        return tuple(int(a) for a in lo), tuple(int(a) for a in (hi - lo + 1))
+
+    def _chunked(self, fn) -> None:
+        if self._pool is None:
+            fn(0, *self._ranges[0])
+            return
+        futures = [self._pool.submit(fn, c, start, n) for c, (start, n) in enumerate(self._ranges)]
+        for f in futures:
+            f.result()
+
+    def _launch_chunks(self, kernel, make_inputs, outputs: list, shared: tuple[int, ...] = ()) -> None:
+        """Launch ``kernel`` over the particle chunks (threads on CPU), tape-aware.
+
+        ``make_inputs(chunk, start)`` gives the inputs of a chunk. Without a tape, or with
+        one chunk, plain launches (recorded by Warp itself). With a tape and two chunks the
+        launches are not recorded one by one: a custom backward runs both chunks' adjoint
+        launches on the threads too, giving each chunk a PRIVATE adjoint buffer for the
+        inputs listed in ``shared`` (indices of arrays both chunks read, e.g. the grid: their
+        adjoints are scattered with Warp's CPU atomics, which are plain read-modify-writes)
+        and summing those afterwards.
+        """
+        wp = self.wp
+        dev = self.model.device
+        tape = _active_tape()
+        if tape is None or self._pool is None:
+            self._chunked(lambda c, start, n: wp.launch(kernel, dim=n, inputs=make_inputs(c, start),
+                                                        outputs=outputs, device=dev))
+            return
+        self._chunked(lambda c, start, n: wp.launch(kernel, dim=n, inputs=make_inputs(c, start),
+                                                    outputs=outputs, device=dev, record_tape=False))
+        per_chunk = [make_inputs(c, start) for c, (start, _n) in enumerate(self._ranges)]
+
+        def backward() -> None:
+            private: dict[tuple[int, int], Any] = {}
+
+            def adj(c: int, start: int, n: int) -> None:
+                ins = per_chunk[c]
+                adj_in = []
+                for i, a in enumerate(ins):
+                    g = tape.get_adjoint(a)
+                    if i in shared and g is not None:
+                        g = wp.zeros_like(g)
+                        private[(c, i)] = g
+                    adj_in.append(g)
+                adj_out = [tape.get_adjoint(o) for o in outputs]
+                wp.launch(kernel, dim=n, inputs=ins, outputs=outputs, adj_inputs=adj_in,
+                          adj_outputs=adj_out, device=dev, adjoint=True, record_tape=False)
+
+            self._chunked(adj)
+            for (_c, i), g in private.items():
+                total = per_chunk[0][i].grad
+                wp.launch(_k._add_vec3_3d, dim=total.shape, inputs=[g], outputs=[total], device=dev,
+                          record_tape=False)
+
+        arrays = [a for a in (*[a for ins in per_chunk for a in ins], *outputs)
+                  if isinstance(a, wp.array) and a.grad is not None]
+        tape.record_func(backward=backward, arrays=list({id(a): a for a in arrays}.values()))
+
+    def _region_grid(self, grid: Grid, shape: tuple[int, int, int]):
+        """A zeroed (chunks, *shape) vec4 array for ``grid`` (reused when the shape allows)."""
+        wp = self.wp
+        full = (self.chunks, *shape)
+        mv = grid.mv
+        if grid.requires_grad or mv is None or tuple(mv.shape) != full:
+            # Under a tape every substep keeps its own array (the tape reads it in backward).
+            mv = wp.zeros(full, dtype=wp.vec4, device=self.model.device, requires_grad=grid.requires_grad)
+        else:
+            mv.zero_()
+        return mv
+
+    def step(
+        self,
+        state_in: State,
+        state_out: State,
+        dt: float,
+        t: float = 0.0,
+        substep: int = 0,
+        grid: Grid | None = None,
+    ) -> None:
+        """Advance ``state_in`` by ``dt`` [s] into ``state_out`` (distinct states).
+
+        ``t`` [s] (time at the start of the substep) and ``substep`` (global index) are
+        passed to the boundary hooks. ``state_in`` may be modified in place by
+        ``apply_pre_p2g`` (imposed / frozen velocities). Under a ``wp.Tape``, pass a
+        ``grid`` made with ``make_grid(requires_grad=True)`` per recorded substep.
+        """
+        wp = self.wp
+        m = self.model
+        if state_in is state_out:
+            raise ValueError("Solver.step needs distinct state_in and state_out (ping-pong)")
+        grid = grid or self.grid
+        dt = float(dt)
+        if m.boundary is not None:
+            m.boundary.apply_pre_p2g(m, state_in, t, substep, dt)
+        off, shape = self._region(state_in)
+        wp_off = wp.vec3i(*off)
+        grid.mv = mv = self._region_grid(grid, shape)
+        grid.offset = off
+        pr = m.params
+
+        affine = wp.empty(m.particle_count, dtype=wp.mat33, device=m.device,
+                          requires_grad=state_out.F.requires_grad)
+
+        def stress_inputs(chunk: int, start: int) -> list:
+            return [
+                state_in.C, state_in.F, state_in.ep, state_in.active,
+                m.volume, pr["density"], m.material_class,
+                pr["E"], pr["nu"], pr["tau_Y"], pr["eta"], pr["theta_fric"],
+                pr["mu"], pr["kappa"], pr["n"], m.dx, dt, start,
+            ]
+
+        def p2g_inputs(chunk: int, start: int) -> list:
+            return [state_in.x, state_in.v, affine, state_in.active, m.volume, pr["density"],
+                    self._lo, m.dx, self._dims, start, chunk, wp_off]
+
+        # chunks write disjoint particles and their own private grid: no shared adjoints
+        for cid in self.classes:
+            self._launch_chunks(_k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine])
+        self._p2g(p2g_inputs, affine, mv, state_in)
+        wp.launch(
+            _k._grid_update,
+            dim=shape,
+            inputs=[mv, self.chunks, self._gravity, dt, wp_off],
+            outputs=[grid.velocity],
+            device=m.device,
+        )
+        if m.boundary is not None:
+            m.boundary.apply_grid(m, grid.velocity, t, substep, dt)
+
+        self._g2p(state_in, grid, state_out, dt)
+        if m.boundary is not None:
+            m.boundary.apply_post_g2p(m, state_in, state_out, t, substep, dt)
+
+    def _p2g(self, make_inputs, affine, mv, state_in: State) -> None:
+        """P2G scatter over the chunks; under a tape, records the hand-written adjoint
+        ``_p2g_adjoint`` (chunks read their own private adjoint grid, write disjoint particles)."""
+        wp = self.wp
+        dev = self.model.device
+        tape = _active_tape()
+        density = self.model.params["density"]
+        needed = [state_in.x, state_in.v, affine, density, mv]
+        custom = tape is not None and all(a.grad is not None for a in needed)
+        self._chunked(lambda c, start, n: wp.launch(_k._p2g, dim=n, inputs=make_inputs(c, start), outputs=[mv],
+                                                    device=dev, record_tape=not custom))
+        if not custom:
+            return
+
+        def backward() -> None:
+            def adj(c: int, start: int, n: int) -> None:
+                wp.launch(_k._p2g_adjoint, dim=n, inputs=[*make_inputs(c, start), mv.grad],
+                          outputs=[state_in.x.grad, state_in.v.grad, affine.grad, density.grad],
+                          device=dev, record_tape=False)
+
+            self._chunked(adj)
+
+        tape.record_func(backward=backward, arrays=needed)
+
+    def _g2p(self, state_in: State, grid: Grid, state_out: State, dt: float) -> None:
+        """G2P over the chunks; under a tape, records the hand-written adjoint ``_g2p_adjoint``
+        (both chunks scatter node adjoints: private buffers per chunk, then summed)."""
+        wp = self.wp
+        m = self.model
+        dev = m.device
+        tape = _active_tape()
+
+        def inputs(start: int) -> list:
+            return [state_in.x, grid.velocity, self._lo, m.dx, dt, self._dims, self._x_min, self._x_max, start]
+
+        outputs = [state_out.x, state_out.v, state_out.C]
+        needed = [state_in.x, grid.velocity, *outputs]
+        custom = tape is not None and all(a.grad is not None for a in needed)
+        # (with a tape but some arrays without gradients, Warp records its own adjoint)
+        self._chunked(lambda c, start, n: wp.launch(_k._g2p, dim=n, inputs=inputs(start), outputs=outputs,
+                                                    device=dev, record_tape=not custom))
+        if not custom:
+            return
+
+        def backward() -> None:
+            private = [grid.velocity.grad] if self.chunks == 1 else \
+                [wp.zeros_like(grid.velocity.grad) for _ in range(self.chunks)]
+
+            def adj(c: int, start: int, n: int) -> None:
+                wp.launch(_k._g2p_adjoint, dim=n, inputs=[*inputs(start), state_out.x.grad, state_out.v.grad,
+                                                          state_out.C.grad],
+                          outputs=[state_in.x.grad, private[c]], device=dev, record_tape=False)
+
+            self._chunked(adj)
+            if self.chunks > 1:
+                for g in private:
+                    wp.launch(_k._add_vec3_3d, dim=g.shape, inputs=[g], outputs=[grid.velocity.grad],
+                              device=dev, record_tape=False)
+
+        tape.record_func(backward=backward, arrays=needed)
+
+    def max_speed(self, state: State) -> float:
+        """Largest particle speed [m/s]; inf when any velocity is NaN/Inf."""
+        wp = self.wp
+        out = wp.zeros(1, dtype=float, device=self.model.device)
+        wp.launch(_k._max_speed_sq, dim=state.particle_count, inputs=[state.v, out],
+                  device=self.model.device, record_tape=False)
+        s = float(out.numpy()[0])
+        return math.inf if s >= 1.0e30 else math.sqrt(s)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None
+
+
+def wave_speeds(values: dict[str, Any]) -> np.ndarray:
+    """P-wave speed [m/s] per particle (or scalar) of sim-unit material values.
+
+    Solids: sqrt((lambda + 2 mu) / rho) from E, nu; Newtonian fluid: sqrt(kappa / rho);
+    non-Newtonian: sqrt((kappa + 4/3 mu) / rho).
+    """
+    from motionphysics.sim.model import material_arrays
+
+    count = _count(values)
+    ids, p = material_arrays(values, count)
+    E, nu, rho = p["E"].astype(np.float64), p["nu"].astype(np.float64), p["density"].astype(np.float64)
+    lam_2mu = E * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    modulus = np.where(ids <= 4, lam_2mu, 0.0)
+    modulus = np.where(ids == 5, p["kappa"], modulus)
+    modulus = np.where(ids == 6, p["kappa"] + 4.0 / 3.0 * p["mu"], modulus)
+    return np.sqrt(np.maximum(modulus, 0.0) / rho)
+
+
+def _count(values: dict[str, Any]) -> int:
+    for v in values.values():
+        if hasattr(v, "detach"):
+            v = v.detach().cpu().numpy()
+        a = np.asarray(v)
+        if a.ndim >= 1 and a.dtype.kind not in "US":
+            return int(a.shape[0])
+        if a.ndim >= 1:
+            return int(a.shape[0])
+    return 1
+
+
+def stable_dt(values: dict[str, Any], dx: float, cfl: float = DEFAULT_CFL) -> float:
+    """Largest substep [s] satisfying the CFL condition c dt / dx <= cfl of the stiffest
+    material and the explicit viscosity limit dt <= 0.5 rho dx^2 / (6 mu) (Newtonian)."""
+    from motionphysics.sim.model import material_arrays
+
+    c = float(np.max(wave_speeds(values)))
+    dt = math.inf if c <= 0 else cfl * dx / c
+    ids, p = material_arrays(values, _count(values))
+    visc = ids == 5
+    if np.any(visc & (p["mu"] > 0)):
+        ratio = np.max(np.where(visc, p["mu"] / p["density"], 0.0))
+        dt = min(dt, 0.5 * dx * dx / (6.0 * float(ratio)))
+    return dt
+
+
+def auto_substeps(values: dict[str, Any], dx: float, frame_dt: float, cfl: float = DEFAULT_CFL) -> int:
+    """Smallest substep count per frame whose dt = frame_dt / n satisfies :func:`stable_dt`.
+
+    ``values``: sim-unit material dict (``'class'`` + parameters, scalars or per particle).
+    """
+    dt = stable_dt(values, dx, cfl)
+    if not math.isfinite(dt):
+        return 1
+    return max(1, math.ceil(frame_dt / dt * (1.0 - 1e-9)))
+
+
+def cfl_number(values_or_model: Any, dx: float, dt: float) -> float:
+    """max wave speed * dt / dx for a material dict or a :class:`Model`."""
+    if isinstance(values_or_model, Model):
+        mm = values_or_model
+        values = {"class": mm.material_class.numpy(), **{k: a.numpy() for k, a in mm.params.items()}}
+    else:
+        values = values_or_model
+    return float(np.max(wave_speeds(values))) * dt / dx

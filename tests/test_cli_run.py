@@ -1,0 +1,138 @@
+"""Command-line behaviour of run / simulate / eval / demo: exit codes and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from motionphysics.cli import main
+
+DATA = Path(__file__).parent / "data"
+TINY = DATA / "pipeline_tiny.yaml"
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "Traceback" not in err
+    return err
+
+
+def test_unknown_key_is_exit_2(tmp_path, capsys):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("scene: {source: 'builtin:sphere'}\nsim: {grids: 32}\n")
+    assert main(["run", str(cfg), "--out", str(tmp_path / "o")]) == 2
+    err = _one_line_error(capsys)
+    assert "bad.yaml" in err and "sim.grids" in err and "unknown key" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_bad_value_names_field(tmp_path, capsys):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("sim: {frames: -3}\n")
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "o")]) == 2
+    err = _one_line_error(capsys)
+    assert "bad.yaml" in err and "sim.frames" in err
+
+
+def test_missing_config_file(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nope.yaml")]) == 2
+    assert "config file not found" in _one_line_error(capsys)
+
+
+def test_not_yaml_mapping(tmp_path, capsys):
+    cfg = tmp_path / "list.yaml"
+    cfg.write_text("- 1\n- 2\n")
+    assert main(["run", str(cfg)]) == 2
+    assert "mapping" in _one_line_error(capsys)
+
+
+def test_prior_not_available(tmp_path, capsys):
+    import importlib.util
+
+    if importlib.util.find_spec("motionphysics.priors.tiny") is not None:
+        pytest.skip("this build ships the tiny prior; the not-available path cannot occur")
+    assert main(["run", str(TINY), "--prior", "tiny", "--out", str(tmp_path / "o")]) == 2
+    err = _one_line_error(capsys)
+    assert "optimize.prior" in err and "not available in this build" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_bad_params_file(tmp_path, capsys):
+    p = tmp_path / "p.json"
+    p.write_text(json.dumps({"class": "elastic", "density": 1000, "params": {"E": 1e7, "mu": 1.0}}))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("scene: {source: 'builtin:sphere', scale: 0.3, translate: [0, 0, 0.3], max_particles: 500}\n"
+                   "sim: {grid: 12, frames: 2}\n")
+    assert main(["simulate", str(cfg), "--params", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = _one_line_error(capsys)
+    assert "mu" in err
+    p.write_text("{not json")
+    assert main(["simulate", str(cfg), "--params", str(p), "--out", str(tmp_path / "o2")]) == 2
+    assert "p.json" in _one_line_error(capsys)
+
+
+def test_eval_on_non_run(tmp_path, capsys):
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "not a run directory" in _one_line_error(capsys)
+
+
+def test_ctrl_c_leaves_consistent_partial_run(tmp_path):
+    """A real SIGINT to a running `motionphysics run`: exit 130, partial run marked."""
+    cfg = tmp_path / "long.yaml"
+    # A complete material (no estimate stage: a quicker start) and a long simulation.
+    short = TINY.read_text().replace("material: {nu: 0.4}",
+                                     "material: {class: elastic, density: 1100, E: 2.0e7, nu: 0.4}")
+    assert "E: 2.0e7" in short
+    text = short.replace("frames: 8, frame_dt: 0.04, substeps: auto",
+                         "frames: 200, frame_dt: 0.04, substeps: 100")
+    assert "substeps: 100" in text  # tens of seconds of simulation: the signal lands inside it
+    cfg.write_text(text)
+    (tmp_path / "short.yaml").write_text(short)
+    out = tmp_path / "run"
+    env = dict(os.environ)
+    env.setdefault("MOTIONPHYSICS_CACHE", str(Path(__file__).resolve().parents[1] / ".cache"))
+    proc = subprocess.Popen([sys.executable, "-m", "motionphysics", "run", str(cfg), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.time() + 240
+        stage = None
+        while time.time() < deadline and proc.poll() is None:
+            try:
+                stage = json.loads((out / "params.json").read_text()).get("stage")
+            except (OSError, ValueError):
+                stage = None
+            if stage == "simulate":
+                break
+            time.sleep(0.2)
+        assert stage == "simulate", f"never reached the simulate stage (last: {stage})"
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-2000:]
+    assert "interrupted" in err and "partial" in err and "Traceback" not in err
+    p = json.loads((out / "params.json").read_text())
+    assert p["partial"] is True and p["status"] == "interrupted" and p["stage"] == "simulate"
+    assert p["class"] == "elastic"  # what was known before the interruption is kept
+    assert not (out / "trajectory.npz").exists()
+    assert not [q.name for q in out.iterdir() if q.name.startswith(".")]  # no temporaries
+    assert (out / "report.html").is_file() and "did not finish" in (out / "report.html").read_text()
+    # the partial run is refused without --resume / --force, and --force replaces it
+    proc2 = subprocess.run([sys.executable, "-m", "motionphysics", "run", str(cfg), "--out", str(out)],
+                           capture_output=True, text=True, env=env, timeout=120)
+    assert proc2.returncode == 2 and "partial run" in proc2.stderr
+    # --force replaces the partial run with a complete one
+    assert main(["--quiet", "run", str(tmp_path / "short.yaml"), "--out", str(out), "--force"]) == 0
+    p = json.loads((out / "params.json").read_text())
+    assert p["partial"] is False and p["status"] == "complete"
+    assert (out / "trajectory.npz").is_file()
