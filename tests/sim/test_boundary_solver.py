@@ -191,7 +191,11 @@ def test_gradients_through_solver_steps_match_finite_differences():
     # the dynamics are piecewise smooth (contact / friction kinks), so rtol 2e-2.
     for name, value in values.items():
         d = rng.normal(size=np.shape(value))
-        eps = 1e-2
+        # The force changes x only by ~dt^2 a per substep (O(1e-6) m): at eps 1e-2 the loss
+        # difference is at float32 round-off (measured: FD scatter of 5-15 % at eps 3e-3 to
+        # 1e-2, 0.05 % at 1e-1). The response is linear in the force away from contact
+        # kinks, so a larger step costs no truncation error.
+        eps = 1e-1 if name == "forces[0].force" else 1e-2
         fd = (loss({**values, name: value + eps * d}) - loss({**values, name: value - eps * d})) / (2 * eps)
         an = float(np.sum(grads[name] * d))
         assert an == pytest.approx(fd, rel=2e-2, abs=1e-6), f"{name}: adjoint {an}, FD {fd}"
