@@ -32,7 +32,9 @@ def timing_table(splats, sizes, threads, repeats, backend):
                 print(f"  {n} {size} t={t}: {cells}", file=sys.stderr)
     print(f"load average (1, 5, 15 min) before: {fmt(LOAD0)}, after: {fmt(os.getloadavg())}")
     print()
-    print("| splats | size | threads | forward: wall [s] | (CPU [s]) | forward+backward: wall [s] | (CPU [s]) |")
+    print(
+        "| splats | size | threads | forward: wall [s] | (CPU [s]) | forward+backward: wall [s] | (CPU [s]) |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for n, size, t, f, fc, fb, fbc, _b in rows:
         print(f"| {n} | {size}² | {t} | {f:.3f} | ({fc:.3f}) | {fb:.3f} | ({fbc:.3f}) |")
@@ -63,8 +65,10 @@ def bias(h_values=(2e-3, 5e-4, 1e-4, 2e-5)):
     for h in h_values:
         errs = {}
         for cut in ("hard", "smooth"):
+
             def loss(m, cut=cut):
                 return rasterize_reference(m, covs, colors, opac, cam, (1, 1, 1), cut=cut).rgb.sum()
+
             leaf = means.clone().requires_grad_()
             loss(leaf).backward()
             grads[cut] = leaf.grad
@@ -84,7 +88,9 @@ def bias(h_values=(2e-3, 5e-4, 1e-4, 2e-5)):
 LOAD0 = os.getloadavg()
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--bias", action="store_true")
     ap.add_argument("--splats", type=int, nargs="+", default=[5000, 20000, 50000])
     ap.add_argument("--sizes", type=int, nargs="+", default=[128, 256])

@@ -41,17 +41,21 @@ def main(argv: list[str] | None = None) -> int:
                 r = run_case(name, d, size=args.size, grad_mode=mode, iterations=args.iters)
             rows.append(r)
             print(json.dumps(r), file=sys.stderr, flush=True)
-    print("| case | grad_mode | param | true (sim) | start (sim) | recovered (sim) | error | tol "
-          "| iters to tol | iters | s/iter |")
+    print(
+        "| case | grad_mode | param | true (sim) | start (sim) | recovered (sim) | error | tol "
+        "| iters to tol | iters | s/iter |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         for n, e in r["errors"].items():
             err = f"{100 * e['error']:.1f} %" if e["kind"] == "rel" else f"{e['error']:.3f}"
             tol = f"{100 * e['tolerance']:.0f} %" if e["kind"] == "rel" else f"{e['tolerance']}"
-            print(f"| {r['case']} | {r['grad_mode']} | {n} | {_fmt(r['true_sim'][n])} | "
-                  f"{_fmt(r['start_sim'][n])} | {_fmt(float(r['final_sim'][n]))} | {err} | {tol} | "
-                  f"{r['iterations_to_tolerance'] if r['iterations_to_tolerance'] is not None else '-'} | "
-                  f"{r['iterations']} | {r['seconds_per_iteration']:.2f} |")
+            print(
+                f"| {r['case']} | {r['grad_mode']} | {n} | {_fmt(r['true_sim'][n])} | "
+                f"{_fmt(r['start_sim'][n])} | {_fmt(float(r['final_sim'][n]))} | {err} | {tol} | "
+                f"{r['iterations_to_tolerance'] if r['iterations_to_tolerance'] is not None else '-'} | "
+                f"{r['iterations']} | {r['seconds_per_iteration']:.2f} |"
+            )
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)

@@ -23,10 +23,23 @@ def test_defaults_follow_design_md():
         ({"scen": {}}, "scen: unknown key"),
         ({"sim": {"grid": "x"}}, "sim.grid:"),
         ({"sim": {"substeps": 0}}, "sim.substeps"),
-        ({"boundary_conditions": [{"type": "surface_collider", "mdoe": 1}]},
-         "boundary_conditions[0].mdoe: unknown key"),
-        ({"forces": [{"type": "add_impulse", "force": [0, 0, 1], "box": [[0, 0, 0], [1, 1, 1]],
-                      "sphere": [[0, 0, 0], 1]}]}, "forces[0]"),
+        (
+            {"boundary_conditions": [{"type": "surface_collider", "mdoe": 1}]},
+            "boundary_conditions[0].mdoe: unknown key",
+        ),
+        (
+            {
+                "forces": [
+                    {
+                        "type": "add_impulse",
+                        "force": [0, 0, 1],
+                        "box": [[0, 0, 0], [1, 1, 1]],
+                        "sphere": [[0, 0, 0], 1],
+                    }
+                ]
+            },
+            "forces[0]",
+        ),
         ({"material": {"class": "rubbery"}}, "material.class"),
         ({"scene": {"crop": [1, 0, 0, 1, 0, 1]}}, "scene"),
     ],
@@ -41,15 +54,22 @@ def test_errors_name_the_file_and_field(data, where):
 def test_round_trip_including_sticky_collider(tmp_path):
     # A resolved config (run.yaml) must load back equal; a sticky collider's friction
     # stays "absent" (null) so re-validation does not invent a friction.
-    cfg = config_from_dict({
-        "material": {"class": "elastic", "E": 1e6, "nu": 0.3},
-        "boundary_conditions": [
-            {"type": "surface_collider", "mode": "sticky"},
-            {"type": "surface_collider", "point": [0, 0, -1], "mode": "frictional", "friction": 0.5},
-            {"type": "bounding_box"},
-        ],
-        "forces": [{"type": "add_impulse", "force": [0, 0, 5], "end": 0.01}],
-    })
+    cfg = config_from_dict(
+        {
+            "material": {"class": "elastic", "E": 1e6, "nu": 0.3},
+            "boundary_conditions": [
+                {"type": "surface_collider", "mode": "sticky"},
+                {
+                    "type": "surface_collider",
+                    "point": [0, 0, -1],
+                    "mode": "frictional",
+                    "friction": 0.5,
+                },
+                {"type": "bounding_box"},
+            ],
+            "forces": [{"type": "add_impulse", "force": [0, 0, 5], "end": 0.01}],
+        }
+    )
     path = tmp_path / "run.yaml"
     path.write_text(dump_config(cfg))
     again = load_config(path)

@@ -34,8 +34,20 @@ def _env():
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("e2e") / "run"
     proc = subprocess.run(
-        [sys.executable, "-m", "motionphysics", "run", str(TINY), "--out", str(out), "--export-ply"],
-        capture_output=True, text=True, env=_env(), timeout=600,
+        [
+            sys.executable,
+            "-m",
+            "motionphysics",
+            "run",
+            str(TINY),
+            "--out",
+            str(out),
+            "--export-ply",
+        ],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "video:" in proc.stdout and "material:" in proc.stdout
@@ -43,9 +55,18 @@ def run_dir(tmp_path_factory):
 
 
 def test_run_directory_files(run_dir):
-    for name in ("run.yaml", "params.json", "trajectory.npz", "video.mp4", "metrics.json",
-                 "report.html", "plots/reference.png", "plots/slice_row.png", "plots/slice_col.png",
-                 "plots/energy.png"):
+    for name in (
+        "run.yaml",
+        "params.json",
+        "trajectory.npz",
+        "video.mp4",
+        "metrics.json",
+        "report.html",
+        "plots/reference.png",
+        "plots/slice_row.png",
+        "plots/slice_col.png",
+        "plots/energy.png",
+    ):
         assert (run_dir / name).is_file(), name
     assert not [p.name for p in run_dir.iterdir() if p.name.startswith(".")]  # no temporaries
 
@@ -69,7 +90,9 @@ def test_run_yaml_is_resolved(run_dir):
     cfg = load_config(run_dir / "run.yaml")
     p = json.loads((run_dir / "params.json").read_text())
     assert cfg.material.class_ == "elastic" and cfg.material.E == pytest.approx(p["params"]["E"])
-    assert cfg.material.nu == pytest.approx(0.4) and cfg.material.density == pytest.approx(p["density"])
+    assert cfg.material.nu == pytest.approx(0.4) and cfg.material.density == pytest.approx(
+        p["density"]
+    )
     raw = yaml.safe_load((run_dir / "run.yaml").read_text())
     assert raw["optimize"]["seed"] == 0 and "torch" in raw["versions"]
     assert cfg.camera.radius > 0 and "radius" in raw["camera"]  # auto-framed view written in
@@ -121,8 +144,20 @@ def test_report_and_splats(run_dir):
 
 def test_simulate_with_params_reproduces(run_dir, tmp_path):
     out = tmp_path / "sim"
-    assert main(["--quiet", "simulate", str(TINY), "--params", str(run_dir / "params.json"),
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "--quiet",
+                "simulate",
+                str(TINY),
+                "--params",
+                str(run_dir / "params.json"),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     for name in ("trajectory.npz", "video.mp4", "params.json", "run.yaml"):
         assert (out / name).is_file()
     a, b = np.load(run_dir / "trajectory.npz")["x"], np.load(out / "trajectory.npz")["x"]

@@ -22,11 +22,21 @@ PROMPTS = {
 }
 
 SCENE = {
-    "scene": {"source": "builtin:sphere", "scale": 0.3, "translate": [0, 0, 0.3], "max_particles": 1000},
+    "scene": {
+        "source": "builtin:sphere",
+        "scale": 0.3,
+        "translate": [0, 0, 0.3],
+        "max_particles": 1000,
+    },
     "sim": {"grid": 16, "frames": 16, "frame_dt": 0.04, "substeps": "auto"},
     "boundary_conditions": [
-        {"type": "surface_collider", "point": [0, 0, 0], "normal": [0, 0, 1], "mode": "frictional",
-         "friction": 0.3},
+        {
+            "type": "surface_collider",
+            "point": [0, 0, 0],
+            "normal": [0, 0, 1],
+            "mode": "frictional",
+            "friction": 0.3,
+        },
         {"type": "bounding_box"},
     ],
 }
@@ -41,16 +51,21 @@ def _motion(names, scale: float = 0.3):
 
     data = {**SCENE, "scene": {**SCENE["scene"], "scale": scale, "translate": [0, 0, scale]}}
     cfg = config_from_dict(data)
-    sim_scene = prepare(load_scene(cfg.scene.source), cfg.scene, cfg.sim, list(cfg.boundary_conditions))
+    sim_scene = prepare(
+        load_scene(cfg.scene.source), cfg.scene, cfg.sim, list(cfg.boundary_conditions)
+    )
     ests = estimate_many([PROMPTS[n] for n in names], options=EstimateOptions(announce=False))
     out = {}
     for name, est in zip(names, ests, strict=True):
-        res = resolve_material(cfg, {"class": est.cls, "density": est.density,
-                                     "params": dict(est.values), "backend": "kb"})
+        res = resolve_material(
+            cfg,
+            {"class": est.cls, "density": est.density, "params": dict(est.values), "backend": "kb"},
+        )
         sim_values, _ = _map_to_sim(res["material"], cfg, sim_scene)
         with Progress(quiet=True) as prog, prog.stage("simulate") as st:
-            xs, _, vs, _ = _simulate(sim_scene, cfg, res["material"], sim_values, "cpu",
-                                     cfg.sim.frames, st)
+            xs, _, vs, _ = _simulate(
+                sim_scene, cfg, res["material"], sim_values, "cpu", cfg.sim.frames, st
+            )
         m = physical_metrics({"x": xs, "t": np.arange(len(xs)) * cfg.sim.frame_dt, "v": vs})
         out[name] = (est.cls, m)
     return out
@@ -58,8 +73,10 @@ def _motion(names, scale: float = 0.3):
 
 def _check(out):
     for name, (cls, m) in out.items():
-        print(f"{name:10s} {cls:13s} height {m['final_height_ratio']:.3f} spread {m['spread_ratio']:.3f} "
-              f"rebound {m['rebound_ratio']:.3f}")
+        print(
+            f"{name:10s} {cls:13s} height {m['final_height_ratio']:.3f} spread {m['spread_ratio']:.3f} "
+            f"rebound {m['rebound_ratio']:.3f}"
+        )
     if "elastic" in out:
         cls, m = out["elastic"]
         assert cls == "elastic"
@@ -69,11 +86,16 @@ def _check(out):
         cls, m = out["metal"]
         assert cls == "metal"
         assert m["final_height_ratio"] > 0.85 and m["spread_ratio"] < 1.1
-        assert m["rebound_ratio"] < out.get("elastic", (None, {"rebound_ratio": 1.0}))[1]["rebound_ratio"] - 0.2
+        assert (
+            m["rebound_ratio"]
+            < out.get("elastic", (None, {"rebound_ratio": 1.0}))[1]["rebound_ratio"] - 0.2
+        )
     for name in ("water", "sand", "toothpaste"):
         if name in out:
             _, m = out[name]
-            assert m["final_height_ratio"] < 0.5 and m["spread_ratio"] > 1.5  # collapses and spreads
+            assert (
+                m["final_height_ratio"] < 0.5 and m["spread_ratio"] > 1.5
+            )  # collapses and spreads
             assert m["rebound_ratio"] < 0.2
     if "water" in out and "sand" in out:
         # water runs out further and thinner than sand, which stops at its friction angle

@@ -132,7 +132,9 @@ class SimConfig(_Strict):
         if self.domain is not None:
             lo, hi = self.domain
             if not all(a < b for a, b in zip(lo, hi, strict=True)):
-                raise ValueError("domain must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max")
+                raise ValueError(
+                    "domain must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max"
+                )
         return self
 
 
@@ -183,7 +185,9 @@ class SurfaceCollider(_BCBase):
     """For ``cut``: fraction of velocity removed per substep inside the region."""
 
 
-BoundaryCondition = Annotated[ClampGrid | BoundingBox | SurfaceCollider, Field(discriminator="type")]
+BoundaryCondition = Annotated[
+    ClampGrid | BoundingBox | SurfaceCollider, Field(discriminator="type")
+]
 
 
 class Region(_Strict):
@@ -335,9 +339,20 @@ def _format_loc(loc: tuple[Any, ...]) -> str:
             parts.append(f"[{item}]")
         else:
             # Discriminated-union tags appear as a path element; they are not user keys.
-            if item in {"clamp_grid", "bounding_box", "surface_collider", "add_constant_force",
-                        "add_impulse", "force_particles_translation", "force_particles_rotation",
-                        "release_particles"} and parts:
+            if (
+                item
+                in {
+                    "clamp_grid",
+                    "bounding_box",
+                    "surface_collider",
+                    "add_constant_force",
+                    "add_impulse",
+                    "force_particles_translation",
+                    "force_particles_rotation",
+                    "release_particles",
+                }
+                and parts
+            ):
                 continue
             parts.append(("." if parts else "") + str(item))
     return "".join(parts) or "(top level)"

@@ -62,8 +62,17 @@ __all__ = [
 ]
 
 PARAMS_SCHEMA = "motionphysics.params/1"
-UNITS = {"density": "kg/m^3", "E": "Pa", "nu": "-", "tau_Y": "Pa", "eta": "-",
-         "theta_fric": "deg", "mu": "Pa s", "kappa": "Pa", "n": "-"}
+UNITS = {
+    "density": "kg/m^3",
+    "E": "Pa",
+    "nu": "-",
+    "tau_Y": "Pa",
+    "eta": "-",
+    "theta_fric": "deg",
+    "mu": "Pa s",
+    "kappa": "Pa",
+    "n": "-",
+}
 INIT_BACKENDS = ("kb", "llm", "median", "naive")
 
 
@@ -102,6 +111,7 @@ def resolve_paths(data: dict[str, Any], base: Path | None) -> dict[str, Any]:
     config file first, then in the working directory (so a config and its assets can
     be moved together, and ``run.yaml`` works from anywhere).
     """
+
     def fix(value: Any) -> Any:
         if not isinstance(value, str) or value.startswith("builtin:") or not value.strip():
             return value
@@ -121,7 +131,9 @@ def resolve_paths(data: dict[str, Any], base: Path | None) -> dict[str, Any]:
     return data
 
 
-def load_run_config(path: str | Path | None, overrides: Mapping[str, Any] | None = None) -> RunConfig:
+def load_run_config(
+    path: str | Path | None, overrides: Mapping[str, Any] | None = None
+) -> RunConfig:
     """Read a YAML run config (or the defaults when ``path`` is None), apply overrides.
 
     ``overrides`` maps dotted config paths (``"prompt"``, ``"optimize.iterations"``,
@@ -174,7 +186,9 @@ def read_params_file(path: str | Path) -> dict[str, Any]:
         raise UserInputError(f"{p}: expected a JSON object with class, density, params")
     cls = data.get("class")
     if not isinstance(cls, str):
-        raise UserInputError(f"{p}: field 'class' missing (expected one of {', '.join(MATERIAL_CLASSES)})")
+        raise UserInputError(
+            f"{p}: field 'class' missing (expected one of {', '.join(MATERIAL_CLASSES)})"
+        )
     params = data.get("params", {})
     if not isinstance(params, dict):
         raise UserInputError(f"{p}: field 'params' must be an object of parameter values (SI)")
@@ -221,8 +235,9 @@ def _estimate(prompt: str, image, backend: str, progress: Progress | None = None
     }
 
 
-def resolve_material(cfg: RunConfig, estimate: dict[str, Any] | None,
-                     base: dict[str, Any] | None = None) -> dict[str, Any]:
+def resolve_material(
+    cfg: RunConfig, estimate: dict[str, Any] | None, base: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """Combine an estimate (or a params file) with the config's ``material:`` block.
 
     Precedence per field: config ``material:`` > ``base`` (``--params`` file) >
@@ -242,10 +257,15 @@ def resolve_material(cfg: RunConfig, estimate: dict[str, Any] | None,
     elif start is not None and start.get("class") is not None:
         cls = normalise_class(start["class"], field=f"{start_name}.class")
     else:
-        raise UserInputError("material.class: missing (give it in the config or pass --params FILE)")
+        raise UserInputError(
+            "material.class: missing (give it in the config or pass --params FILE)"
+        )
     names = MATERIALS[cls].names
-    same_class = start is not None and start.get("class") is not None and \
-        normalise_class(start["class"], field=f"{start_name}.class") == cls
+    same_class = (
+        start is not None
+        and start.get("class") is not None
+        and normalise_class(start["class"], field=f"{start_name}.class") == cls
+    )
     if base is not None and same_class:
         stray = sorted(k for k in (base.get("params") or {}) if k not in names)
         if stray:
@@ -268,7 +288,9 @@ def resolve_material(cfg: RunConfig, estimate: dict[str, Any] | None,
             continue
         sval = None
         if start is not None and (same_class or name == "density"):
-            sval = start.get("density") if name == "density" else (start.get("params") or {}).get(name)
+            sval = (
+                start.get("density") if name == "density" else (start.get("params") or {}).get(name)
+            )
         if sval is not None:
             values[name] = sval
             sources[name] = start_name
@@ -276,8 +298,9 @@ def resolve_material(cfg: RunConfig, estimate: dict[str, Any] | None,
             values[name] = _range_centre(cls, name)
             sources[name] = f"range centre of {cls}"
     density = values.pop("density")
-    params, clamps = validate(cls, values, density=density, on_out_of_range="clamp",
-                              origin="material")
+    params, clamps = validate(
+        cls, values, density=density, on_out_of_range="clamp", origin="material"
+    )
     return {
         "material": params,
         "clamps": [c.to_dict() for c in clamps],
@@ -299,20 +322,32 @@ def _map_to_sim(material, cfg: RunConfig, sim_scene) -> tuple[dict[str, float], 
     gravity = float(np.linalg.norm(np.asarray(cfg.sim.gravity, dtype=np.float64)))
     if cfg.sim.substeps == "auto":
         dt = frame_dt / 512
-        ctx = SimContext(dx=dx, dt=dt, density=float(material.density), length=length, gravity=gravity)
+        ctx = SimContext(
+            dx=dx, dt=dt, density=float(material.density), length=length, gravity=gravity
+        )
         sim = physical_to_sim(material, ctx)
         from motionphysics.sim.solver import auto_substeps
 
         substeps = int(auto_substeps({"class": material.cls, **sim}, dx, frame_dt))
     else:
         substeps = int(cfg.sim.substeps)
-        ctx = SimContext(dx=dx, dt=frame_dt / substeps, density=float(material.density), length=length,
-                         gravity=gravity)
+        ctx = SimContext(
+            dx=dx,
+            dt=frame_dt / substeps,
+            density=float(material.density),
+            length=length,
+            gravity=gravity,
+        )
         sim = physical_to_sim(material, ctx)
     sim = {k: float(v) for k, v in sim.items()}
-    return sim, {"dx": dx, "dt": frame_dt / substeps, "substeps": substeps,
-                 "frame_dt": frame_dt, "length": length,
-                 "grid_dims": [int(v) for v in sim_scene.grid_dims]}
+    return sim, {
+        "dx": dx,
+        "dt": frame_dt / substeps,
+        "substeps": substeps,
+        "frame_dt": frame_dt,
+        "length": length,
+        "grid_dims": [int(v) for v in sim_scene.grid_dims],
+    }
 
 
 def _np(a) -> np.ndarray:
@@ -375,7 +410,9 @@ def _fit_radius(corners: np.ndarray, cam, fill: float = 0.9) -> float:
     while not fits(hi):
         hi *= 2.0
         if hi > 1e7:
-            raise UserInputError("camera: could not frame the scene automatically; set camera.radius")
+            raise UserInputError(
+                "camera: could not frame the scene automatically; set camera.radius"
+            )
     for _ in range(40):
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if fits(mid) else (mid, hi)
@@ -413,8 +450,14 @@ def resolve_camera(cfg: RunConfig, sim_scene) -> tuple[RunConfig, dict[str, Any]
         box_hi[2] = box_hi[2] if up[2] > 0 else max(box_hi[2], ground)
         box_lo[:2] -= 0.12 * size
         box_hi[:2] += 0.12 * size
-    corners = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1])
-                        for z in (box_lo[2], box_hi[2])])
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (box_lo[0], box_hi[0])
+            for y in (box_lo[1], box_hi[1])
+            for z in (box_lo[2], box_hi[2])
+        ]
+    )
     look_at = tuple(float(v) for v in 0.5 * (box_lo + box_hi))
     probe = cam.model_copy(update={"look_at": look_at})
     radius = _fit_radius(corners, probe)
@@ -453,16 +496,21 @@ def ground_splats(cfg: RunConfig, sim_scene) -> dict[str, Any] | None:
     z = ground - 0.004 * size
     means = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], -1)
     cell = max(size / 6, 3.0 * step)
-    parity = (np.floor((gx.ravel() - centre[0]) / cell) + np.floor((gy.ravel() - centre[1]) / cell)) % 2
+    parity = (
+        np.floor((gx.ravel() - centre[0]) / cell) + np.floor((gy.ravel() - centre[1]) / cell)
+    ) % 2
     colors = np.where(parity[:, None] == 0, [0.80, 0.80, 0.78], [0.66, 0.67, 0.66])
     sxy = 0.62 * step
     covs = np.zeros((means.shape[0], 3, 3))
     covs[:, 0, 0] = covs[:, 1, 1] = sxy**2
     covs[:, 2, 2] = (0.002 * size) ** 2
     f32 = torch.float32
-    return {"means": torch.as_tensor(means, dtype=f32), "covs": torch.as_tensor(covs, dtype=f32),
-            "colors": torch.as_tensor(colors, dtype=f32),
-            "opacities": torch.full((means.shape[0],), 0.98, dtype=f32)}
+    return {
+        "means": torch.as_tensor(means, dtype=f32),
+        "covs": torch.as_tensor(covs, dtype=f32),
+        "colors": torch.as_tensor(colors, dtype=f32),
+        "opacities": torch.full((means.shape[0],), 0.98, dtype=f32),
+    }
 
 
 def render_view(sim_scene, x, F, camera, background, ground: dict[str, Any] | None = None):
@@ -478,8 +526,9 @@ def render_view(sim_scene, x, F, camera, background, ground: dict[str, Any] | No
     splats = sim_scene.splats
     x = torch.as_tensor(x, dtype=torch.float32)
     F = torch.as_tensor(F, dtype=torch.float32)
-    means, covs, colors = deform_splats(splats, x, F, sim_scene.splat_parent.long(),
-                                        sim_scene.splat_offset.to(x), camera)
+    means, covs, colors = deform_splats(
+        splats, x, F, sim_scene.splat_parent.long(), sim_scene.splat_offset.to(x), camera
+    )
     opac = splats.opacities.to(x)
     if ground is not None:
         means = torch.cat([means, ground["means"]])
@@ -531,15 +580,19 @@ def _fps(frame_dt: float) -> float:
     return max(1.0, min(60.0, 1.0 / frame_dt))
 
 
-def run_pipeline(cfg: RunConfig, out: str | Path, *,
-                 init_backend: str = "kb",
-                 params_file: str | Path | None = None,
-                 optimise: bool = True,
-                 resume: bool = False,
-                 force: bool = False,
-                 progress: Progress | None = None,
-                 config_origin: str = "<config>",
-                 command: str = "run") -> RunResult:
+def run_pipeline(
+    cfg: RunConfig,
+    out: str | Path,
+    *,
+    init_backend: str = "kb",
+    params_file: str | Path | None = None,
+    optimise: bool = True,
+    resume: bool = False,
+    force: bool = False,
+    progress: Progress | None = None,
+    config_origin: str = "<config>",
+    command: str = "run",
+) -> RunResult:
     """Run the main job and write the run directory at ``out``.
 
     ``optimise=False`` is ``motionphysics simulate`` (forward only; material from the
@@ -551,7 +604,9 @@ def run_pipeline(cfg: RunConfig, out: str | Path, *,
     from motionphysics.runtime import check_device, set_threads
 
     if init_backend not in INIT_BACKENDS:
-        raise UserInputError(f"--init: expected one of {', '.join(INIT_BACKENDS)}, got {init_backend!r}")
+        raise UserInputError(
+            f"--init: expected one of {', '.join(INIT_BACKENDS)}, got {init_backend!r}"
+        )
     device = check_device(cfg.device)
     if optimise and cfg.optimize.prior != "none":
         _check_prior_available(cfg)
@@ -631,8 +686,14 @@ def run_pipeline(cfg: RunConfig, out: str | Path, *,
             ground = ground_splats(cfg, sim_scene)
             P = int(_np(sim_scene.particles).shape[0])
             with torch.no_grad():
-                ref = render_view(sim_scene, sim_scene.particles, torch.eye(3).expand(P, 3, 3),
-                                  camera, background, ground)
+                ref = render_view(
+                    sim_scene,
+                    sim_scene.particles,
+                    torch.eye(3).expand(P, 3, 3),
+                    camera,
+                    background,
+                    ground,
+                )
             ref_np = (np.clip(_np(ref), 0, 1) * 255 + 0.5).astype(np.uint8)
             _write_png(rd, "plots/reference.png", ref_np)
             written.append("plots/reference.png")
@@ -650,8 +711,13 @@ def run_pipeline(cfg: RunConfig, out: str | Path, *,
             res = resolve_material(cfg, estimate, base)
             material = res["material"]
             sim_values, sim_ctx = _map_to_sim(material, cfg, sim_scene)
-            backend = ("params file" if base is not None else
-                       estimate["backend"] if estimate is not None else "config")
+            backend = (
+                "params file"
+                if base is not None
+                else estimate["backend"]
+                if estimate is not None
+                else "config"
+            )
             state.update(_material_record(material, sim_values, sim_ctx))
             state["provenance"] = {
                 "backend": backend,
@@ -666,8 +732,11 @@ def run_pipeline(cfg: RunConfig, out: str | Path, *,
             }
             # run.yaml: the material that was simulated (before any optimisation), so
             # re-running the file reproduces the run.
-            mat_block = {"class": material.cls, "density": float(material.density),
-                         **{k: float(v) for k, v in material.values.items()}}
+            mat_block = {
+                "class": material.cls,
+                "density": float(material.density),
+                **{k: float(v) for k, v in material.values.items()},
+            }
             cfg = config_from_dict({**config_to_dict(cfg), "material": mat_block}, config_origin)
             save_run_yaml(cfg)
 
@@ -678,14 +747,17 @@ def run_pipeline(cfg: RunConfig, out: str | Path, *,
                 material, sim_values = opt["material"], opt["sim"]
                 state.update(_material_record(material, sim_values, sim_ctx))
                 state["history"] = opt["history"]
-                state["optimise"] = {k: v for k, v in opt.items()
-                                     if k not in ("material", "sim", "history")}
+                state["optimise"] = {
+                    k: v for k, v in opt.items() if k not in ("material", "sim", "history")
+                }
                 written += ["log.jsonl", "checkpoint.pt"]
 
         # ---- simulate ----------------------------------------------------------------
         frames = int(cfg.sim.frames)
         with stage("simulate", total=frames) as st:
-            xs, Fs, vs, substeps = _simulate(sim_scene, cfg, material, sim_values, device, frames, st)
+            xs, Fs, vs, substeps = _simulate(
+                sim_scene, cfg, material, sim_values, device, frames, st
+            )
             state["sim_context"]["substeps"] = substeps
             state["sim_context"]["dt"] = cfg.sim.frame_dt / substeps
 
@@ -717,8 +789,15 @@ def run_pipeline(cfg: RunConfig, out: str | Path, *,
         _write_report_safe(rd, state, cfg, metrics, plots)
         written.append("report.html")
         save_params()
-        return RunResult(rd.path, dict(state), metrics, dict(progress.timings), rd.path / "video.mp4",
-                         cfg, written)
+        return RunResult(
+            rd.path,
+            dict(state),
+            metrics,
+            dict(progress.timings),
+            rd.path / "video.mp4",
+            cfg,
+            written,
+        )
     except KeyboardInterrupt:
         with _no_sigint():
             state["status"] = "interrupted"
@@ -733,7 +812,9 @@ def run_pipeline(cfg: RunConfig, out: str | Path, *,
         with _no_sigint():
             state["status"] = "failed"
             state["partial"] = True
-            state["error"] = f"{type(err).__name__}: {err}".splitlines()[0] if str(err) else type(err).__name__
+            state["error"] = (
+                f"{type(err).__name__}: {err}".splitlines()[0] if str(err) else type(err).__name__
+            )
             try:
                 save_params()
             except Exception:  # the original error matters more than the bookkeeping
@@ -753,7 +834,9 @@ def _material_complete(cfg: RunConfig) -> bool:
     return all(p.name in given or getattr(p, "default", None) is not None for p in mc.params)
 
 
-def _material_record(material, sim_values: dict[str, float], sim_ctx: dict[str, Any]) -> dict[str, Any]:
+def _material_record(
+    material, sim_values: dict[str, float], sim_ctx: dict[str, Any]
+) -> dict[str, Any]:
     from motionphysics.materials.catalog import class_id
 
     return {
@@ -772,8 +855,10 @@ def _check_prior_available(cfg: RunConfig) -> None:
     import importlib.util
 
     prior = cfg.optimize.prior
-    have_prior = importlib.util.find_spec(f"motionphysics.priors.{prior}") is not None \
-        if importlib.util.find_spec("motionphysics.priors") is not None else False
+    try:
+        have_prior = importlib.util.find_spec(f"motionphysics.priors.{prior}") is not None
+    except ImportError:  # no motionphysics.priors package in this build at all
+        have_prior = False
     have_runner = False
     try:
         from motionphysics import optimize as _opt
@@ -797,9 +882,15 @@ def _optimise(cfg, sim_scene, material, camera, rd, resume: bool, stage_handle) 
     """
     from motionphysics.optimize import run_prior_optimisation
 
-    return run_prior_optimisation(cfg=cfg, sim_scene=sim_scene, material=material, camera=camera,
-                                  run_dir=rd.path, resume=resume,
-                                  on_iteration=stage_handle.advance)
+    return run_prior_optimisation(
+        cfg=cfg,
+        sim_scene=sim_scene,
+        material=material,
+        camera=camera,
+        run_dir=rd.path,
+        resume=resume,
+        on_iteration=stage_handle.advance,
+    )
 
 
 def _simulate(sim_scene, cfg: RunConfig, material, sim_values, device, frames: int, st):
@@ -826,12 +917,16 @@ def _simulate(sim_scene, cfg: RunConfig, material, sim_values, device, frames: i
     Fs = np.asarray(_np(Fs), dtype=np.float32)
     vs = np.asarray(_np(vs), dtype=np.float32)
     if not (np.isfinite(xs).all() and np.isfinite(Fs).all()):
-        raise SimulationError("the simulation produced non-finite positions or deformation "
-                              "gradients; lower sim.frame_dt or use more substeps")
+        raise SimulationError(
+            "the simulation produced non-finite positions or deformation "
+            "gradients; lower sim.frame_dt or use more substeps"
+        )
     return xs, Fs, vs, int(sim.substeps)
 
 
-def _render_video(rd, sim_scene, xs, Fs, camera, background, ground, cfg: RunConfig, st) -> np.ndarray:
+def _render_video(
+    rd, sim_scene, xs, Fs, camera, background, ground, cfg: RunConfig, st
+) -> np.ndarray:
     """Render every frame (no autograd) and write video.mp4; returns frames [T, H, W, 3] uint8."""
     import torch
 
@@ -840,8 +935,14 @@ def _render_video(rd, sim_scene, xs, Fs, camera, background, ground, cfg: RunCon
     out = []
     with torch.no_grad():
         for i in range(xs.shape[0]):
-            rgb = render_view(sim_scene, torch.from_numpy(xs[i]), torch.from_numpy(Fs[i]), camera,
-                              background, ground)
+            rgb = render_view(
+                sim_scene,
+                torch.from_numpy(xs[i]),
+                torch.from_numpy(Fs[i]),
+                camera,
+                background,
+                ground,
+            )
             out.append((np.clip(_np(rgb), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
             st.advance()
     video = np.stack(out)
@@ -858,7 +959,10 @@ def _write_trajectory(rd, sim_scene, xs, Fs, vs, cfg: RunConfig, material) -> di
     mass = volumes * float(material.density)
     write_trajectory(
         rd.file("trajectory.npz"),
-        x=xs, t=np.arange(frames, dtype=np.float64) * cfg.sim.frame_dt, F=Fs, v=vs,
+        x=xs,
+        t=np.arange(frames, dtype=np.float64) * cfg.sim.frame_dt,
+        F=Fs,
+        v=vs,
         mass=mass.astype(np.float32),
         volume=volumes.astype(np.float32),
         gravity=np.asarray(cfg.sim.gravity, dtype=np.float32),
@@ -905,23 +1009,56 @@ def _write_plots(rd, video: np.ndarray, traj, metrics, cfg: RunConfig, state) ->
 
     plots = []
     row, col = _object_row_col(video[0], cfg.camera.background)
-    space_time_slice(video, rd.file("plots/slice_row.png"), axis="row", index=row,
-                     frame_dt=cfg.sim.frame_dt, title=f"space-time slice, pixel row {row}")
-    space_time_slice(video, rd.file("plots/slice_col.png"), axis="col", index=col,
-                     frame_dt=cfg.sim.frame_dt, title=f"space-time slice, pixel column {col}")
+    space_time_slice(
+        video,
+        rd.file("plots/slice_row.png"),
+        axis="row",
+        index=row,
+        frame_dt=cfg.sim.frame_dt,
+        title=f"space-time slice, pixel row {row}",
+    )
+    space_time_slice(
+        video,
+        rd.file("plots/slice_col.png"),
+        axis="col",
+        index=col,
+        frame_dt=cfg.sim.frame_dt,
+        title=f"space-time slice, pixel column {col}",
+    )
     plots += ["plots/slice_row.png", "plots/slice_col.png"]
     t = traj["t"]
-    plot_series({"kinetic": metrics["kinetic_energy"], "potential (rel. frame 0)": metrics["potential_energy"],
-                 "total": metrics["total_energy"]}, t, rd.file("plots/energy.png"),
-                ylabel="energy [J]", title="energy")
-    plot_series({"height / initial": np.asarray(metrics["height"]) / max(metrics["initial_height"], 1e-9),
-                 "spread / initial": np.asarray(metrics["spread"]) / max(metrics["spread"][0], 1e-9)},
-                t, rd.file("plots/shape.png"), ylabel="ratio", title="height and spread")
+    plot_series(
+        {
+            "kinetic": metrics["kinetic_energy"],
+            "potential (rel. frame 0)": metrics["potential_energy"],
+            "total": metrics["total_energy"],
+        },
+        t,
+        rd.file("plots/energy.png"),
+        ylabel="energy [J]",
+        title="energy",
+    )
+    plot_series(
+        {
+            "height / initial": np.asarray(metrics["height"])
+            / max(metrics["initial_height"], 1e-9),
+            "spread / initial": np.asarray(metrics["spread"]) / max(metrics["spread"][0], 1e-9),
+        },
+        t,
+        rd.file("plots/shape.png"),
+        ylabel="ratio",
+        title="height and spread",
+    )
     plots += ["plots/energy.png", "plots/shape.png"]
     if "volume_ratio" in metrics:
         vr = metrics["volume_ratio"]
-        plot_series({"mean det F": vr["mean"], "min": vr["min"], "max": vr["max"]}, t,
-                    rd.file("plots/volume.png"), ylabel="det F", title="volume ratio")
+        plot_series(
+            {"mean det F": vr["mean"], "min": vr["min"], "max": vr["max"]},
+            t,
+            rd.file("plots/volume.png"),
+            ylabel="det F",
+            title="volume ratio",
+        )
         plots.append("plots/volume.png")
     history = state.get("history") or []
     if history:
@@ -933,8 +1070,10 @@ def _write_plots(rd, video: np.ndarray, traj, metrics, cfg: RunConfig, state) ->
         try:
             from motionphysics.materials.catalog import spec
 
-            ranges = {n: (spec(state["class"], n).low, spec(state["class"], n).high)
-                      for n in state["params"]}
+            ranges = {
+                n: (spec(state["class"], n).low, spec(state["class"], n).high)
+                for n in state["params"]
+            }
             plot_params(history, ranges, rd.file("plots/params.png"))
             plots.append("plots/params.png")
         except ValueError:
@@ -946,8 +1085,16 @@ def _write_plots(rd, video: np.ndarray, traj, metrics, cfg: RunConfig, state) ->
 def _write_report_safe(rd, state, cfg: RunConfig, metrics, plots) -> None:
     from motionphysics.io.report import write_report
 
-    write_report(rd, state, prompt=cfg.prompt, timings=state.get("timings"), metrics=metrics,
-                 video="video.mp4", plots=plots, title="motionphysics run")
+    write_report(
+        rd,
+        state,
+        prompt=cfg.prompt,
+        timings=state.get("timings"),
+        metrics=metrics,
+        video="video.mp4",
+        plots=plots,
+        title="motionphysics run",
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -975,12 +1122,16 @@ def summary_text(result: RunResult) -> str:
             s += f"  [{src}]"
         lines.append(s)
     for c in prov.get("clamps") or []:
-        lines.append(f"  clamped {c['field']}: {_fmt(float(c['original']))} -> {_fmt(float(c['clamped']))}")
+        lines.append(
+            f"  clamped {c['field']}: {_fmt(float(c['original']))} -> {_fmt(float(c['clamped']))}"
+        )
     m = result.metrics or {}
     if m:
-        lines.append(f"motion:    final height/initial {m.get('final_height_ratio', float('nan')):.3f}, "
-                     f"spread ratio {m.get('spread_ratio', float('nan')):.3f}, "
-                     f"max displacement {m.get('max_displacement', float('nan')):.3f} m")
+        lines.append(
+            f"motion:    final height/initial {m.get('final_height_ratio', float('nan')):.3f}, "
+            f"spread ratio {m.get('spread_ratio', float('nan')):.3f}, "
+            f"max displacement {m.get('max_displacement', float('nan')):.3f} m"
+        )
     lines.append(f"video:     {result.run_dir / 'video.mp4'}")
     lines.append(f"report:    {result.run_dir / 'report.html'}")
     lines.append("timings:")

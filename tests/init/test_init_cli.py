@@ -38,8 +38,13 @@ def test_init_table(capsys):
 
 
 def test_init_from_file_keeps_order(tmp_path, capsys):
-    prompts = ["The plane propeller is spinning.", "A water droplet splashes.", "",
-               "The sandcastle is collapsing.", "A playdoh figure is squished."]
+    prompts = [
+        "The plane propeller is spinning.",
+        "A water droplet splashes.",
+        "",
+        "The sandcastle is collapsing.",
+        "A playdoh figure is squished.",
+    ]
     f = tmp_path / "prompts.txt"
     f.write_text("\n".join(prompts) + "\n", encoding="utf-8")
     rc, out, _ = _run(["init", "--from", str(f)], capsys)
@@ -50,8 +55,9 @@ def test_init_from_file_keeps_order(tmp_path, capsys):
 
 
 def test_init_median_backend(capsys):
-    rc, out, _ = _run(["init", "An axe is hitting the ground.", "--backend", "median",
-                       "--json"], capsys)
+    rc, out, _ = _run(
+        ["init", "An axe is hitting the ground.", "--backend", "median", "--json"], capsys
+    )
     d = json.loads(out)
     assert rc == 0 and d["backend"] == "median" and d["material"]["class"] == "metal"
     assert d["material"]["E"] == pytest.approx((4.5e10 + 4e11) / 2)
@@ -59,10 +65,12 @@ def test_init_median_backend(capsys):
 
 @pytest.mark.parametrize(
     "argv, match",
-    [(["init", ""], "empty"),
-     (["init", "x" * 100_000], "too long"),
-     (["init"], "exactly one"),
-     (["init", "An axe.", "--from", "prompts.txt"], "exactly one")],
+    [
+        (["init", ""], "empty"),
+        (["init", "x" * 100_000], "too long"),
+        (["init"], "exactly one"),
+        (["init", "An axe.", "--from", "prompts.txt"], "exactly one"),
+    ],
 )
 def test_init_bad_input_exit_2(argv, match, capsys):
     rc, _, err = _run(argv, capsys)
@@ -91,8 +99,13 @@ def test_init_bad_backend_exit_2(capsys):
 
 def test_init_exit_status_from_a_real_process():
     env = dict(os.environ)
-    r = subprocess.run([sys.executable, "-m", "motionphysics", "init", "   "],
-                       capture_output=True, text=True, env=env, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "motionphysics", "init", "   "],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
     assert r.returncode == 2
     assert r.stderr.strip().startswith("motionphysics: error: prompt: empty")
     assert "Traceback" not in r.stderr

@@ -17,8 +17,14 @@ from motionphysics.materials.catalog import DENSITY, MATERIALS, Clamp
 
 @pytest.mark.parametrize(
     "prompt, match",
-    [("", "empty"), ("   \n ", "empty"), ("x" * 100_000, "too long"), (None, "expected text"),
-     ("bad\x00byte", "control characters"), ("caf\udce9", "UTF-8")],
+    [
+        ("", "empty"),
+        ("   \n ", "empty"),
+        ("x" * 100_000, "too long"),
+        (None, "expected text"),
+        ("bad\x00byte", "control characters"),
+        ("caf\udce9", "UTF-8"),
+    ],
 )
 def test_bad_prompts(prompt, match):
     with pytest.raises(UserInputError, match=match):
@@ -73,11 +79,23 @@ def test_median_backend_arithmetic_and_geometric():
 
 
 def test_material_estimate_json_schema():
-    est = MaterialEstimate("metal", 7850.0, {"E": 2e11, "nu": 0.3, "tau_Y": 2.5e8}, "llm",
-                           clamped=[Clamp("E", 1e12, 4e11)], raw_answer="{}", prompt="An axe.")
+    est = MaterialEstimate(
+        "metal",
+        7850.0,
+        {"E": 2e11, "nu": 0.3, "tau_Y": 2.5e8},
+        "llm",
+        clamped=[Clamp("E", 1e12, 4e11)],
+        raw_answer="{}",
+        prompt="An axe.",
+    )
     d = json.loads(est.to_json())
-    assert d["material"] == {"class": "metal", "density": 7850.0, "E": 2e11, "nu": 0.3,
-                             "tau_Y": 2.5e8}
+    assert d["material"] == {
+        "class": "metal",
+        "density": 7850.0,
+        "E": 2e11,
+        "nu": 0.3,
+        "tau_Y": 2.5e8,
+    }
     assert d["backend"] == "llm" and d["raw_answer"] == "{}"
     assert d["clamped"] == [{"field": "E", "original": 1e12, "clamped": 4e11}]
     assert est.params.values["E"] == 2e11 and est.params.cls == "metal"

@@ -23,9 +23,31 @@ from motionphysics.materials.catalog import MATERIALS, spec
 
 PROMPTS = Path(__file__).resolve().parents[1] / "data" / "prompts.csv"
 
-REQUIRED = ["rubber", "jelly", "steel", "aluminium", "copper", "gold", "clay", "play-doh",
-            "bread", "sponge", "memory foam", "dry sand", "wet sand", "snow", "water", "honey",
-            "oil", "syrup", "toothpaste", "ketchup", "mayonnaise", "cream", "mud"]
+REQUIRED = [
+    "rubber",
+    "jelly",
+    "steel",
+    "aluminium",
+    "copper",
+    "gold",
+    "clay",
+    "play-doh",
+    "bread",
+    "sponge",
+    "memory foam",
+    "dry sand",
+    "wet sand",
+    "snow",
+    "water",
+    "honey",
+    "oil",
+    "syrup",
+    "toothpaste",
+    "ketchup",
+    "mayonnaise",
+    "cream",
+    "mud",
+]
 
 
 def test_knowledge_base_content():
@@ -55,7 +77,12 @@ def test_packaged_embeddings_match_the_kb_file():
 
 def test_tokenize():
     assert tokenize("Sandcastles, Play-Doh & knight's helmets!") == [
-        "sandcastle", "play", "doh", "knight", "helmet"]
+        "sandcastle",
+        "play",
+        "doh",
+        "knight",
+        "helmet",
+    ]
     assert tokenize("glasses of molasses") == ["glass", "of", "molass"]
 
 
@@ -64,7 +91,9 @@ def test_lexical_context_rules_without_the_model():
 
     def factors(text):
         toks = tokenize(text)
-        return {" ".join(toks[s.start:s.end]): s.factor for s in m._spans(toks) if s.kb or s.explicit}
+        return {
+            " ".join(toks[s.start : s.end]): s.factor for s in m._spans(toks) if s.kb or s.explicit
+        }
 
     f = factors("A bucket of water is spilled onto the table")
     assert f["bucket"] < 1.0 and f["water"] == 1.0  # container before "of"
@@ -107,19 +136,24 @@ def test_prompt_set_accuracy(matcher):
             t.ljust(14) + "".join(str(confusion[(t, p)]).rjust(8) for p in MATERIAL_CLASSES)
             for t in MATERIAL_CLASSES
         ]
-        wrong = [f"{r['class']} -> {e.cls}: {r['prompt']}" for r, e in zip(rows, ests, strict=True)
-                 if r["class"] != e.cls]
+        wrong = [
+            f"{r['class']} -> {e.cls}: {r['prompt']}"
+            for r, e in zip(rows, ests, strict=True)
+            if r["class"] != e.cls
+        ]
         pytest.fail(f"kb accuracy {correct}/{len(rows)} < 95 %\n" + "\n".join(lines + wrong))
 
 
 @pytest.mark.parametrize(
     "prompt, cls",
-    [("A metal cat falls over.", "metal"),            # explicit word beats the object
-     ("A cat made of water collapses.", "newtonian"),
-     ("An elastic bird is hitting the ground.", "elastic"),
-     ("A rubber duck hits the sand.", "elastic"),      # surface after an impact verb
-     ("Some liquid metal flows.", "newtonian"),       # a known phrase before its words
-     ("A sponge made of metal is dropped.", "metal")],
+    [
+        ("A metal cat falls over.", "metal"),  # explicit word beats the object
+        ("A cat made of water collapses.", "newtonian"),
+        ("An elastic bird is hitting the ground.", "elastic"),
+        ("A rubber duck hits the sand.", "elastic"),  # surface after an impact verb
+        ("Some liquid metal flows.", "newtonian"),  # a known phrase before its words
+        ("A sponge made of metal is dropped.", "metal"),
+    ],
 )
 def test_explicit_words_and_context(matcher, prompt, cls):
     assert matcher.match(prompt).cls == cls
@@ -142,9 +176,11 @@ def test_kb_cache_for_another_kb_file(tmp_path, monkeypatch):
     import json
 
     data = json.loads(src.path.read_text())
-    data["entries"] = [e for e in data["entries"] if e["name"] in ("steel", "water", "rubber",
-                                                                    "clay", "sponge", "dry sand",
-                                                                    "toothpaste")]
+    data["entries"] = [
+        e
+        for e in data["entries"]
+        if e["name"] in ("steel", "water", "rubber", "clay", "sponge", "dry sand", "toothpaste")
+    ]
     small = tmp_path / "small_kb.json"
     small.write_text(json.dumps(data))
     m = KBMatcher(load_kb(str(small)), announce=False)

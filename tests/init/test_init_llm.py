@@ -23,8 +23,9 @@ from motionphysics.materials.catalog import Clamp
 
 SECRET = "sk-test-secret-never-printed"
 
-GOOD = json.dumps({"material_type": "Metal", "density": 7850, "E": 2.1e11, "nu": 0.30,
-                   "tau_Y": 2.5e8})
+GOOD = json.dumps(
+    {"material_type": "Metal", "density": 7850, "E": 2.1e11, "nu": 0.30, "tau_Y": 2.5e8}
+)
 
 
 class FakeChatServer:
@@ -53,13 +54,22 @@ class FakeChatServer:
                 if isinstance(reply, tuple):
                     time.sleep(reply[0])
                     reply = reply[1]
-                payload = json.dumps({
-                    "id": "chatcmpl-test", "object": "chat.completion", "created": 0,
-                    "model": body.get("model", "m"),
-                    "choices": [{"index": 0, "finish_reason": "stop",
-                                 "message": {"role": "assistant", "content": reply}}],
-                    "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2},
-                }).encode()
+                payload = json.dumps(
+                    {
+                        "id": "chatcmpl-test",
+                        "object": "chat.completion",
+                        "created": 0,
+                        "model": body.get("model", "m"),
+                        "choices": [
+                            {
+                                "index": 0,
+                                "finish_reason": "stop",
+                                "message": {"role": "assistant", "content": reply},
+                            }
+                        ],
+                        "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2},
+                    }
+                ).encode()
                 try:
                     self.send_response(200)
                     self.send_header("Content-Type", "application/json")
@@ -87,8 +97,15 @@ class FakeChatServer:
 
 
 def _opts(server, timeout=10.0, retries=0):
-    return EstimateOptions(llm=LLMOptions(base_url=server.base_url, model="test-model",
-                                          api_key=SECRET, timeout=timeout, max_retries=retries))
+    return EstimateOptions(
+        llm=LLMOptions(
+            base_url=server.base_url,
+            model="test-model",
+            api_key=SECRET,
+            timeout=timeout,
+            max_retries=retries,
+        )
+    )
 
 
 def _user_text(request) -> str:
@@ -115,9 +132,11 @@ def test_good_answer():
 
 
 def test_answer_in_code_fence_with_text_around():
-    reply = ("Here is my estimate:\n```json\n{\n  \"material_type\": \"Newtonian fluid\",\n"
-             "  \"density\": 1000,\n  \"mu\": 0.001,\n  \"kappa\": 2.2e9,\n}\n```\n"
-             "Water is a Newtonian fluid.")
+    reply = (
+        'Here is my estimate:\n```json\n{\n  "material_type": "Newtonian fluid",\n'
+        '  "density": 1000,\n  "mu": 0.001,\n  "kappa": 2.2e9,\n}\n```\n'
+        "Water is a Newtonian fluid."
+    )
     with FakeChatServer([reply]) as srv:
         est = estimate("A water droplet splashes.", backend="llm", options=_opts(srv))
     assert est.cls == "newtonian"
@@ -126,8 +145,16 @@ def test_answer_in_code_fence_with_text_around():
 
 
 def test_out_of_range_values_are_clamped_and_recorded():
-    reply = json.dumps({"material_type": "elastic", "density": 1.0, "E": 1e13, "nu": 0.3,
-                        "mu": None, "theta_fric": None})
+    reply = json.dumps(
+        {
+            "material_type": "elastic",
+            "density": 1.0,
+            "E": 1e13,
+            "nu": 0.3,
+            "mu": None,
+            "theta_fric": None,
+        }
+    )
     with FakeChatServer([reply]) as srv:
         est = estimate("A rubber duck bounces.", backend="llm", options=_opts(srv))
     assert est.values == {"E": 4e11, "nu": 0.3} and est.density == 10.0
@@ -159,8 +186,10 @@ def test_wrong_class_twice_is_a_clear_error():
 
 
 def test_invalid_json_twice_is_a_clear_error():
-    with FakeChatServer(["I think it is metal.", "{material: metal"]) as srv, \
-            pytest.raises(LLMError, match="no JSON object"):
+    with (
+        FakeChatServer(["I think it is metal.", "{material: metal"]) as srv,
+        pytest.raises(LLMError, match="no JSON object"),
+    ):
         estimate("An axe.", backend="llm", options=_opts(srv))
     assert len(srv.requests) == 2
     assert isinstance(LLMError("x"), UserInputError)  # the CLI exits 2 on it
@@ -217,8 +246,9 @@ def test_image_is_sent_as_an_image_url_part(tmp_path):
 
 
 def test_naive_backend_asks_without_ranges_and_clamps():
-    reply = json.dumps({"material_type": "metal", "density": 7850, "E": 2e12, "nu": 0.3,
-                        "tau_Y": 2.5e8})
+    reply = json.dumps(
+        {"material_type": "metal", "density": 7850, "E": 2e12, "nu": 0.3, "tau_Y": 2.5e8}
+    )
     with FakeChatServer([reply]) as srv:
         est = estimate("An axe.", backend="naive", options=_opts(srv))
     text = _user_text(srv.requests[0])
@@ -250,21 +280,35 @@ def test_options_from_environment(monkeypatch):
 
 @pytest.mark.parametrize(
     "reply, cls, values",
-    [('{"material_type": "non-newtonian", "density": "1300", "mu": 50, "kappa": 2e9, '
-      '"tau_Y": 200, "eta": 0.5}', "non_newtonian",
-      {"density": 1300.0, "mu": 50.0, "kappa": 2e9, "tau_Y": 200.0, "eta": 0.5}),
-     ('{"Material Type": "Sand", "Density": 1600, "friction_angle": 35}', "sand",
-      {"density": 1600.0, "theta_fric": 35.0}),
-     ('{"material_type": "metal", "density": 7850, "E": "2.1 x 10^11", "nu": 0.3, '
-      '"tau_Y": 2.5e8}', "metal", {"density": 7850.0, "E": 2.1e11, "nu": 0.3, "tau_Y": 2.5e8})],
+    [
+        (
+            '{"material_type": "non-newtonian", "density": "1300", "mu": 50, "kappa": 2e9, '
+            '"tau_Y": 200, "eta": 0.5}',
+            "non_newtonian",
+            {"density": 1300.0, "mu": 50.0, "kappa": 2e9, "tau_Y": 200.0, "eta": 0.5},
+        ),
+        (
+            '{"Material Type": "Sand", "Density": 1600, "friction_angle": 35}',
+            "sand",
+            {"density": 1600.0, "theta_fric": 35.0},
+        ),
+        (
+            '{"material_type": "metal", "density": 7850, "E": "2.1 x 10^11", "nu": 0.3, '
+            '"tau_Y": 2.5e8}',
+            "metal",
+            {"density": 7850.0, "E": 2.1e11, "nu": 0.3, "tau_Y": 2.5e8},
+        ),
+    ],
 )
 def test_parse_answer_spellings(reply, cls, values):
     got_cls, got, _ = parse_answer(reply)
     assert got_cls == cls and got == pytest.approx(values)
 
 
-@pytest.mark.parametrize("reply", ['{"material_type": "metal", "E": "2.2 GPa"}', "no json", "[1, 2]",
-                                   '{"density": 1000}'])
+@pytest.mark.parametrize(
+    "reply",
+    ['{"material_type": "metal", "E": "2.2 GPa"}', "no json", "[1, 2]", '{"density": 1000}'],
+)
 def test_parse_answer_refuses(reply):
     with pytest.raises(ValueError):
         parse_answer(reply)
@@ -272,20 +316,39 @@ def test_parse_answer_refuses(reply):
 
 def test_cli_llm_json_output(capsys):
     with FakeChatServer([GOOD]) as srv:
-        rc = main(["init", "An axe is hitting the ground.", "--backend", "llm", "--json",
-                   "--base-url", srv.base_url, "--model", "m", "--timeout", "10"])
+        rc = main(
+            [
+                "init",
+                "An axe is hitting the ground.",
+                "--backend",
+                "llm",
+                "--json",
+                "--base-url",
+                srv.base_url,
+                "--model",
+                "m",
+                "--timeout",
+                "10",
+            ]
+        )
     out, err = capsys.readouterr()
     assert rc == 0
     d = json.loads(out)
-    assert d["material"] == {"class": "metal", "density": 7850.0, "E": 2.1e11, "nu": 0.3,
-                             "tau_Y": 2.5e8}
+    assert d["material"] == {
+        "class": "metal",
+        "density": 7850.0,
+        "E": 2.1e11,
+        "nu": 0.3,
+        "tau_Y": 2.5e8,
+    }
     assert d["backend"] == "llm" and d["clamped"] == [] and d["raw_answer"] == GOOD
     assert SECRET not in out + err
 
 
 def test_cli_llm_error_exits_2(capsys):
     with FakeChatServer(["nope", "still nope"]) as srv:
-        rc = main(["init", "An axe.", "--backend", "llm", "--base-url", srv.base_url,
-                   "--timeout", "10"])
+        rc = main(
+            ["init", "An axe.", "--backend", "llm", "--base-url", srv.base_url, "--timeout", "10"]
+        )
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "no usable answer" in err

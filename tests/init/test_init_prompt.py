@@ -9,14 +9,25 @@ from motionphysics.materials.catalog import DENSITY, MATERIALS
 
 # The appendix table's ranges as they must read in the prompt (SI units).
 PAPER_RANGES = [
-    "E: 1e7 - 4e11 Pa", "nu: 0.1 - 0.5",                                   # elastic
-    "E: 1e6 - 5e6 Pa", "nu: 0.3 - 0.4", "tau_Y: 5e3 - 2e4 Pa",             # plasticine
-    "E: 4.5e10 - 4e11 Pa", "nu: 0.25 - 0.35", "tau_Y: 1e7 - 2e9 Pa",       # metal
-    "E: 1e3 - 1e7 Pa", "nu: 0 - 0.3", "tau_Y: 1e4 - 1e6 Pa", "eta: 0.1 - 1",  # foam
-    "theta_fric: 27 - 45 deg",                                             # sand
-    "mu: 1e-3 - 10 Pa s", "kappa: 1e9 - 5e9 Pa",                           # newtonian
-    "mu: 1e-3 - 1e3 Pa s", "tau_Y: 1 - 2e3 Pa", "n: 0.3 - 1",              # non-newtonian
-    "10 - 2.3e4 kg/m^3",                                                   # density
+    "E: 1e7 - 4e11 Pa",
+    "nu: 0.1 - 0.5",  # elastic
+    "E: 1e6 - 5e6 Pa",
+    "nu: 0.3 - 0.4",
+    "tau_Y: 5e3 - 2e4 Pa",  # plasticine
+    "E: 4.5e10 - 4e11 Pa",
+    "nu: 0.25 - 0.35",
+    "tau_Y: 1e7 - 2e9 Pa",  # metal
+    "E: 1e3 - 1e7 Pa",
+    "nu: 0 - 0.3",
+    "tau_Y: 1e4 - 1e6 Pa",
+    "eta: 0.1 - 1",  # foam
+    "theta_fric: 27 - 45 deg",  # sand
+    "mu: 1e-3 - 10 Pa s",
+    "kappa: 1e9 - 5e9 Pa",  # newtonian
+    "mu: 1e-3 - 1e3 Pa s",
+    "tau_Y: 1 - 2e3 Pa",
+    "n: 0.3 - 1",  # non-newtonian
+    "10 - 2.3e4 kg/m^3",  # density
 ]
 
 
@@ -33,14 +44,19 @@ def test_ranged_prompt_contains_every_range_of_the_table():
 
 def test_prompt_structure_follows_the_paper():
     text = build_prompt("An axe is hitting the ground.", has_image=True)
-    order = ["Textual simulation prompt", "Reference image", "What is this object?",
-             "primarily on the textual simulation prompt", "secondary visual reference only",
-             "must strictly fall within", "Respond in this exact format",
-             "Only include fields relevant"]
+    order = [
+        "Textual simulation prompt",
+        "Reference image",
+        "What is this object?",
+        "primarily on the textual simulation prompt",
+        "secondary visual reference only",
+        "must strictly fall within",
+        "Respond in this exact format",
+        "Only include fields relevant",
+    ]
     positions = [text.index(s) for s in order]
     assert positions == sorted(positions)
-    for key in ("material_type", "density", "E", "nu", "tau_Y", "mu", "kappa", "eta",
-                "theta_fric"):
+    for key in ("material_type", "density", "E", "nu", "tau_Y", "mu", "kappa", "eta", "theta_fric"):
         assert f'"{key}": ' in text
 
 

@@ -17,8 +17,15 @@ def _png(path):
 
 
 def test_plot_loss_and_params(tmp_path):
-    recs = [{"iteration": i, "loss": 1.0 / (i + 1), "loss_lmd": 0.5 / (i + 1),
-             "params": {"E": 1e6 * (1 + i), "nu": 0.3}} for i in range(5)]
+    recs = [
+        {
+            "iteration": i,
+            "loss": 1.0 / (i + 1),
+            "loss_lmd": 0.5 / (i + 1),
+            "params": {"E": 1e6 * (1 + i), "nu": 0.3},
+        }
+        for i in range(5)
+    ]
     w, h = _png(plot_loss(recs, tmp_path / "loss.png"))
     assert w > 100 and h > 100
     _png(plot_params(recs, {"E": (1e5, 1e8), "nu": (0.1, 0.5)}, tmp_path / "params.png"))

@@ -28,8 +28,10 @@ def test_atomic_write_keeps_old_content_on_error(tmp_path):
 
 def test_new_directory_and_json_roundtrip(tmp_path):
     rd = RunDirectory(tmp_path / "run" / "nested")
-    rd.write_json("params.json", {"a": np.float32(1.5), "b": np.arange(3), "c": float("nan"),
-                                  "partial": False})
+    rd.write_json(
+        "params.json",
+        {"a": np.float32(1.5), "b": np.arange(3), "c": float("nan"), "partial": False},
+    )
     data = json.loads((rd.path / "params.json").read_text())
     assert data == {"a": 1.5, "b": [0, 1, 2], "c": None, "partial": False}
     assert RunDirectory.holds_run(rd.path)
@@ -66,7 +68,10 @@ def test_resume_keeps_files(tmp_path):
     rd.append_jsonl("log.jsonl", {"iteration": 0, "loss": 1.0})
     rd2 = RunDirectory(tmp_path / "r", resume=True)
     rd2.append_jsonl("log.jsonl", {"iteration": 1, "loss": float("inf")})
-    assert rd2.read_jsonl("log.jsonl") == [{"iteration": 0, "loss": 1.0}, {"iteration": 1, "loss": None}]
+    assert rd2.read_jsonl("log.jsonl") == [
+        {"iteration": 0, "loss": 1.0},
+        {"iteration": 1, "loss": None},
+    ]
 
 
 def test_torn_jsonl_line_is_ignored(tmp_path):
@@ -93,8 +98,14 @@ def test_trajectory_roundtrip(tmp_path):
     rng = np.random.default_rng(0)
     x = rng.normal(size=(4, 10, 3))
     F = np.tile(np.eye(3), (4, 10, 1, 1)) * 1.1
-    write_trajectory(tmp_path / "trajectory.npz", x=x, t=np.arange(4) * 0.04, F=F,
-                     mass=np.ones(10), gravity=np.array([0, 0, -9.8]))
+    write_trajectory(
+        tmp_path / "trajectory.npz",
+        x=x,
+        t=np.arange(4) * 0.04,
+        F=F,
+        mass=np.ones(10),
+        gravity=np.array([0, 0, -9.8]),
+    )
     d = read_trajectory(tmp_path / "trajectory.npz")
     assert d["x"].dtype == np.float32 and d["x"].shape == (4, 10, 3)
     assert d["det_F"].shape == (4, 10)

@@ -30,17 +30,23 @@ def test_chamfer_matches_numpy_and_ignores_order(monkeypatch):
     got = float(chamfer_distance(torch.tensor(a), torch.tensor(b)))
     assert got == pytest.approx(want, rel=1e-12)
     monkeypatch.setattr(tm, "_CHUNK_ENTRIES", 100)  # forces blocks of 2-3 rows
-    assert float(chamfer_distance(torch.tensor(a), torch.tensor(b))) == pytest.approx(want, rel=1e-12)
+    assert float(chamfer_distance(torch.tensor(a), torch.tensor(b))) == pytest.approx(
+        want, rel=1e-12
+    )
     ref = torch.tensor(a, dtype=torch.float32)[None].expand(2, 50, 3)
     loss = TrajectoryMatchLoss(ref, metric="chamfer")
     perm = torch.randperm(50)
-    assert float(loss(Prediction((1,), xs=ref[:1, perm]), LossContext(0, 2))) == pytest.approx(0.0, abs=1e-12)
+    assert float(loss(Prediction((1,), xs=ref[:1, perm]), LossContext(0, 2))) == pytest.approx(
+        0.0, abs=1e-12
+    )
 
 
 def test_reference_checks():
     loss = TrajectoryMatchLoss(np.zeros((5, 7, 3)), source="traj.npz")
     loss.check(5, 7)
-    with pytest.raises(UserInputError, match="traj.npz: reference has 5 frames but config sim.frames is 9"):
+    with pytest.raises(
+        UserInputError, match="traj.npz: reference has 5 frames but config sim.frames is 9"
+    ):
         loss.check(9, 7)
     with pytest.raises(UserInputError, match="reference has 7 particles .* prepares 8"):
         loss.check(5, 8)

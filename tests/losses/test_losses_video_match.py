@@ -25,7 +25,9 @@ def _ssim_reference(a: np.ndarray, b: np.ndarray, size=11, sigma=1.5) -> np.ndar
             sxx = (w * pa * pa).sum() - mx**2
             syy = (w * pb * pb).sum() - my**2
             sxy = (w * pa * pb).sum() - mx * my
-            out[i, j] = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sxx + syy + c2))
+            out[i, j] = ((2 * mx * my + c1) * (2 * sxy + c2)) / (
+                (mx**2 + my**2 + c1) * (sxx + syy + c2)
+            )
     return out
 
 
@@ -45,7 +47,9 @@ def test_identical_frames_give_zero_and_l1_is_exact():
     ref = torch.rand(5, 16, 16, 3)
     loss = VideoMatchLoss(ref)
     ctx = LossContext(iteration=0, num_frames=5)
-    assert float(loss(Prediction((1, 3), rgb=ref[[1, 3]].clone()), ctx)) == pytest.approx(0.0, abs=1e-6)
+    assert float(loss(Prediction((1, 3), rgb=ref[[1, 3]].clone()), ctx)) == pytest.approx(
+        0.0, abs=1e-6
+    )
     shifted = (ref[[2]] + 0.1).clamp(max=2.0)
     only_l1 = VideoMatchLoss(ref, ssim_weight=0.0)
     # Pure L1 of a constant offset of 0.1 is 0.1 (float32 rounding only).
@@ -76,7 +80,9 @@ def test_gradient_matches_finite_differences():
     pred = torch.rand(1, 9, 9, 3, dtype=torch.float64, requires_grad=True)
     loss(Prediction((1,), rgb=pred), ctx).backward()
     for seed in range(3):  # directional derivatives along random directions
-        v = torch.randn(pred.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(seed))
+        v = torch.randn(
+            pred.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(seed)
+        )
         h = 1e-6
         with torch.no_grad():
             up = float(loss(Prediction((1,), rgb=pred + h * v), ctx))
@@ -90,7 +96,9 @@ def test_gradient_matches_finite_differences():
 def test_reference_checks_name_both_sides():
     loss = VideoMatchLoss(np.zeros((4, 10, 12, 3), np.uint8), source="ref.mp4")
     loss.check(4, 10, 12)
-    with pytest.raises(UserInputError, match=r"ref.mp4: reference has 4 frames but config sim.frames is 6"):
+    with pytest.raises(
+        UserInputError, match=r"ref.mp4: reference has 4 frames but config sim.frames is 6"
+    ):
         loss.check(6, 10, 12)
     with pytest.raises(UserInputError, match=r"12x10 pixels .* 16x16"):
         loss.check(4, 16, 16)

@@ -27,8 +27,13 @@ PAPER_TABLE = {
     "foam": {"E": (1e3, 1e7), "nu": (0.0, 0.3), "tau_Y": (1e4, 1e6), "eta": (0.1, 1.0)},
     "sand": {"theta_fric": (27.0, 45.0)},
     "newtonian": {"mu": (1e-3, 10.0), "kappa": (1e9, 5e9)},
-    "non_newtonian": {"mu": (1e-3, 1e3), "kappa": (1e9, 5e9), "tau_Y": (1.0, 2e3),
-                      "eta": (0.1, 1.0), "n": (0.3, 1.0)},
+    "non_newtonian": {
+        "mu": (1e-3, 1e3),
+        "kappa": (1e9, 5e9),
+        "tau_Y": (1.0, 2e3),
+        "eta": (0.1, 1.0),
+        "n": (0.3, 1.0),
+    },
 }
 
 
@@ -48,10 +53,19 @@ def test_catalogue_matches_the_paper_table():
 
 @pytest.mark.parametrize(
     "text, cls",
-    [("Metal", "metal"), ("Newtonian fluid", "newtonian"), ("non-newtonian", "non_newtonian"),
-     ("Non-Newtonian fluid", "non_newtonian"), ("NON_NEWTONIAN", "non_newtonian"),
-     ("Elastic", "elastic"), ("  sand ", "sand"), ("Foam", "foam"), ("Plasticine", "plasticine"),
-     ("Metal (steel)", "metal"), ("elastic material", "elastic")],
+    [
+        ("Metal", "metal"),
+        ("Newtonian fluid", "newtonian"),
+        ("non-newtonian", "non_newtonian"),
+        ("Non-Newtonian fluid", "non_newtonian"),
+        ("NON_NEWTONIAN", "non_newtonian"),
+        ("Elastic", "elastic"),
+        ("  sand ", "sand"),
+        ("Foam", "foam"),
+        ("Plasticine", "plasticine"),
+        ("Metal (steel)", "metal"),
+        ("elastic material", "elastic"),
+    ],
 )
 def test_normalise_class_accepts_answer_spellings(text, cls):
     assert normalise_class(text) == cls
@@ -68,12 +82,19 @@ def test_validate_good_values_unchanged():
     assert clamps == []
     assert p.cls == "metal" and p.density == 7850.0
     assert p.values == {"E": 2e11, "nu": 0.3, "tau_Y": 2.5e8}
-    assert p.to_dict() == {"class": "metal", "density": 7850.0, "E": 2e11, "nu": 0.3, "tau_Y": 2.5e8}
+    assert p.to_dict() == {
+        "class": "metal",
+        "density": 7850.0,
+        "E": 2e11,
+        "nu": 0.3,
+        "tau_Y": 2.5e8,
+    }
 
 
 def test_validate_density_inside_values_and_default_n():
-    p, clamps = validate("non-newtonian", {"density": 1300, "mu": 5.0, "kappa": 2e9,
-                                           "tau_Y": 100.0, "eta": 0.5})
+    p, clamps = validate(
+        "non-newtonian", {"density": 1300, "mu": 5.0, "kappa": 2e9, "tau_Y": 100.0, "eta": 0.5}
+    )
     assert p.cls == "non_newtonian" and p.density == 1300.0
     assert p.values["n"] == 1.0 and clamps == []
 
@@ -81,7 +102,11 @@ def test_validate_density_inside_values_and_default_n():
 def test_validate_clamps_and_records():
     p, clamps = validate("elastic", {"E": 1e13, "nu": 0.05}, density=5.0)
     assert p.values == {"E": 4e11, "nu": 0.1} and p.density == 10.0
-    assert set(clamps) == {Clamp("E", 1e13, 4e11), Clamp("nu", 0.05, 0.1), Clamp("density", 5.0, 10.0)}
+    assert set(clamps) == {
+        Clamp("E", 1e13, 4e11),
+        Clamp("nu", 0.05, 0.1),
+        Clamp("density", 5.0, 10.0),
+    }
 
 
 def test_validate_error_mode_names_the_field():
@@ -91,12 +116,14 @@ def test_validate_error_mode_names_the_field():
 
 @pytest.mark.parametrize(
     "values, match",
-    [({"E": 1e9}, r"material\.nu: missing"),
-     ({"E": 1e9, "nu": 0.3, "mu": 1.0}, "do not belong"),
-     ({"E": float("nan"), "nu": 0.3}, "finite"),
-     ({"E": math.inf, "nu": 0.3}, "finite"),
-     ({"E": "1e9", "nu": 0.3}, "expected a number"),
-     ({"E": True, "nu": 0.3}, "expected a number")],
+    [
+        ({"E": 1e9}, r"material\.nu: missing"),
+        ({"E": 1e9, "nu": 0.3, "mu": 1.0}, "do not belong"),
+        ({"E": float("nan"), "nu": 0.3}, "finite"),
+        ({"E": math.inf, "nu": 0.3}, "finite"),
+        ({"E": "1e9", "nu": 0.3}, "expected a number"),
+        ({"E": True, "nu": 0.3}, "expected a number"),
+    ],
 )
 def test_validate_rejects_bad_values(values, match):
     with pytest.raises(UserInputError, match=match):

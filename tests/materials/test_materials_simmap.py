@@ -21,8 +21,13 @@ from motionphysics.materials.simmap import (
 CLASSES = list(MATERIALS)
 # (dx [m], dt [s]): grid 32/64/128 on a 1 m domain; 64 fixed substeps and the "auto"
 # budget frame_dt/512 at frame_dt = 0.04 s; plus a tiny dt where nothing is compressed.
-GRIDS = [(1 / 32, 0.04 / 64), (1 / 64, 0.04 / 64), (1 / 64, 0.04 / 512),
-         (1 / 128, 0.04 / 512), (1 / 128, 1e-8)]
+GRIDS = [
+    (1 / 32, 0.04 / 64),
+    (1 / 64, 0.04 / 64),
+    (1 / 64, 0.04 / 512),
+    (1 / 128, 0.04 / 512),
+    (1 / 128, 1e-8),
+]
 
 
 def _value(cls, name, u):
@@ -149,17 +154,29 @@ def test_torch_matches_float_and_is_differentiable():
         assert float(out[k]) == pytest.approx(ref[k], rel=1e-12)
 
     def f(logE, nu, logmu):
-        s = physical_to_sim({"E": torch.exp(logE), "nu": nu, "tau_Y": torch.tensor(1e8,
-                             dtype=torch.float64)}, ctx, cls="metal")
-        m = physical_to_sim({"mu": torch.exp(logmu), "kappa": torch.tensor(2e9, dtype=torch.float64),
-                             "tau_Y": torch.tensor(10.0, dtype=torch.float64),
-                             "eta": torch.tensor(0.5, dtype=torch.float64),
-                             "n": torch.tensor(1.0, dtype=torch.float64)}, ctx, cls="non_newtonian")
+        s = physical_to_sim(
+            {"E": torch.exp(logE), "nu": nu, "tau_Y": torch.tensor(1e8, dtype=torch.float64)},
+            ctx,
+            cls="metal",
+        )
+        m = physical_to_sim(
+            {
+                "mu": torch.exp(logmu),
+                "kappa": torch.tensor(2e9, dtype=torch.float64),
+                "tau_Y": torch.tensor(10.0, dtype=torch.float64),
+                "eta": torch.tensor(0.5, dtype=torch.float64),
+                "n": torch.tensor(1.0, dtype=torch.float64),
+            },
+            ctx,
+            cls="non_newtonian",
+        )
         return torch.stack([torch.log(s["E"]), s["nu"], torch.log(s["tau_Y"]), torch.log(m["eta"])])
 
-    args = (torch.tensor(math.log(1e11), dtype=torch.float64, requires_grad=True),
-            torch.tensor(0.3, dtype=torch.float64, requires_grad=True),
-            torch.tensor(math.log(300.0), dtype=torch.float64, requires_grad=True))
+    args = (
+        torch.tensor(math.log(1e11), dtype=torch.float64, requires_grad=True),
+        torch.tensor(0.3, dtype=torch.float64, requires_grad=True),
+        torch.tensor(math.log(300.0), dtype=torch.float64, requires_grad=True),
+    )
     assert torch.autograd.gradcheck(f, args)
 
 
@@ -199,8 +216,9 @@ def test_dicts_with_a_class_key():
     with pytest.raises(ValueError):
         sim_to_physical(sim, ctx)
     # n has a default: a non-Newtonian material without it maps (the simulator uses 1)
-    nn = physical_to_sim({"mu": 5.0, "kappa": 2e9, "tau_Y": 100.0, "eta": 0.5}, ctx,
-                         cls="non_newtonian")
+    nn = physical_to_sim(
+        {"mu": 5.0, "kappa": 2e9, "tau_Y": 100.0, "eta": 0.5}, ctx, cls="non_newtonian"
+    )
     assert "n" not in nn and nn["tau_Y"] == 100.0
 
 

@@ -18,8 +18,11 @@ CLASSES = list(MATERIALS)
 def _in_range(cls, name):
     ps = spec(cls, name)
     if ps.scale == "log":
-        return st.floats(math.log(ps.low), math.log(ps.high)).map(math.exp).map(
-            lambda x: min(max(x, ps.low), ps.high))
+        return (
+            st.floats(math.log(ps.low), math.log(ps.high))
+            .map(math.exp)
+            .map(lambda x: min(max(x, ps.low), ps.high))
+        )
     return st.floats(ps.low, ps.high)
 
 
@@ -65,8 +68,9 @@ def test_theta_physical_theta_round_trip_and_bounds(cls, raw):
 def test_from_theta_is_differentiable_and_matches_finite_differences():
     par = Parameterisation("metal")
     theta = torch.tensor([0.3, -0.2, 1.1], dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda t: torch.stack(list(par.from_theta(t).values())),
-                                    (theta,))
+    assert torch.autograd.gradcheck(
+        lambda t: torch.stack(list(par.from_theta(t).values())), (theta,)
+    )
 
 
 def test_names_subset_density_and_errors():

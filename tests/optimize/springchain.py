@@ -40,7 +40,9 @@ class LogThetaMap:
         self.ref = {n: math.sqrt(ranges[n][0] * ranges[n][1]) for n in self.names}
 
     def to_theta(self, values):
-        return torch.tensor([math.log(values[n] / self.ref[n]) for n in self.names], dtype=torch.float32)
+        return torch.tensor(
+            [math.log(values[n] / self.ref[n]) for n in self.names], dtype=torch.float32
+        )
 
     def from_theta(self, theta):
         return {n: self.ref[n] * torch.exp(theta[i]) for i, n in enumerate(self.names)}
@@ -50,8 +52,16 @@ RANGES = {"k": (1.0, 1000.0), "c": (1e-3, 1.0)}
 
 
 class SpringChain:
-    def __init__(self, n=5, num_frames=16, substeps=10, frame_dt=0.05, rest=0.1, mass=0.05,
-                 velocity=(0.6, 0.0, 0.0)):
+    def __init__(
+        self,
+        n=5,
+        num_frames=16,
+        substeps=10,
+        frame_dt=0.05,
+        rest=0.1,
+        mass=0.05,
+        velocity=(0.6, 0.0, 0.0),
+    ):
         self.num_particles = n
         self.num_frames = num_frames
         self.substeps = substeps
@@ -161,8 +171,13 @@ def reference(chain, params=None):
     """[T, P, 3] positions of every frame for the given parameters (default TRUE)."""
     params = params or TRUE
     with torch.no_grad():
-        xs, _ = chain.simulate({k: torch.tensor(v) for k, v in params.items()}, None,
-                               range(chain.num_frames), "last_substep", 1)
+        xs, _ = chain.simulate(
+            {k: torch.tensor(v) for k, v in params.items()},
+            None,
+            range(chain.num_frames),
+            "last_substep",
+            1,
+        )
     return xs
 
 
@@ -175,9 +190,12 @@ def _main(out_dir: str, iterations: int) -> None:
     torch.set_num_threads(1)
     chain = SpringChain(num_frames=8, substeps=12)
     loss = get_loss("trajectory_match")(reference(chain))
-    cfg = OptimizeConfig(loss="trajectory_match", iterations=iterations, boost=3, lr=0.1,
-                         tolerance=0.0, seed=3)
-    res = optimize(make_problem(loss, chain=chain), cfg, out_dir, resume=resume, fingerprint="chain")
+    cfg = OptimizeConfig(
+        loss="trajectory_match", iterations=iterations, boost=3, lr=0.1, tolerance=0.0, seed=3
+    )
+    res = optimize(
+        make_problem(loss, chain=chain), cfg, out_dir, resume=resume, fingerprint="chain"
+    )
     torch.save({k: v for k, v in res.theta.items()}, Path(out_dir) / "final_theta.pt")
 
 

@@ -25,8 +25,12 @@ def test_recovers_parameters_from_a_far_start(name, tmp_path):
     # mu 20 %, theta_fric 3 degrees; each start is a factor 5 (or 5.5 degrees) away.
     assert r["ok"], f"{name}: recovered {r['final_sim']} vs true {r['true_sim']} ({r['errors']})"
     for n, (kind, _) in CASES[name].tolerance.items():
-        start_err = abs(r["start_sim"][n] - r["true_sim"][n]) / (abs(r["true_sim"][n]) if kind == "rel" else 1)
-        assert start_err > r["errors"][n]["error"] * 2, "the fit must actually move towards the truth"
+        start_err = abs(r["start_sim"][n] - r["true_sim"][n]) / (
+            abs(r["true_sim"][n]) if kind == "rel" else 1
+        )
+        assert start_err > r["errors"][n]["error"] * 2, (
+            "the fit must actually move towards the truth"
+        )
 
 
 @pytest.mark.slow
@@ -49,18 +53,45 @@ def reference_run(tmp_path_factory):
     d = tmp_path_factory.mktemp("fitref")
     cfg = _write_cfg(d / "true.yaml", CASES["elastic"].true)
     assert main(["--quiet", "simulate", str(cfg), "--out", str(d / "ref")]) == 0
-    start = _write_cfg(d / "start.yaml", {"density": 1000.0, "E": 1.0e10, "nu": 0.25},
-                       params=["E"], lr=0.3, lr_per_param={})
+    start = _write_cfg(
+        d / "start.yaml",
+        {"density": 1000.0, "E": 1.0e10, "nu": 0.25},
+        params=["E"],
+        lr=0.3,
+        lr_per_param={},
+    )
     return d, start
 
 
 def test_fit_command_writes_the_run_directory(reference_run, tmp_path, capsys):
     d, start = reference_run
     out = tmp_path / "fit"
-    assert main(["fit", str(start), "--reference", str(d / "ref" / "trajectory.npz"),
-                 "--out", str(out), "--iters", "3"]) == 0
-    for f in ("params.json", "log.jsonl", "checkpoint.pt", "trajectory.npz", "video.mp4", "run.yaml",
-              "plots/loss.png", "plots/params.png", "plots/slice.png"):
+    assert (
+        main(
+            [
+                "fit",
+                str(start),
+                "--reference",
+                str(d / "ref" / "trajectory.npz"),
+                "--out",
+                str(out),
+                "--iters",
+                "3",
+            ]
+        )
+        == 0
+    )
+    for f in (
+        "params.json",
+        "log.jsonl",
+        "checkpoint.pt",
+        "trajectory.npz",
+        "video.mp4",
+        "run.yaml",
+        "plots/loss.png",
+        "plots/params.png",
+        "plots/slice.png",
+    ):
         assert (out / f).is_file(), f
     params = json.loads((out / "params.json").read_text())
     assert params["partial"] is False and params["fit"]["iterations_run"] == 3
@@ -75,19 +106,61 @@ def test_fit_command_writes_the_run_directory(reference_run, tmp_path, capsys):
     assert "fit:" in capsys.readouterr().out
 
     # an output directory holding a run is refused without --resume / --force
-    assert main(["fit", str(start), "--reference", str(d / "ref" / "trajectory.npz"),
-                 "--out", str(out), "--iters", "1"]) == 2
+    assert (
+        main(
+            [
+                "fit",
+                str(start),
+                "--reference",
+                str(d / "ref" / "trajectory.npz"),
+                "--out",
+                str(out),
+                "--iters",
+                "1",
+            ]
+        )
+        == 2
+    )
     assert "holds another run" in capsys.readouterr().err
-    assert main(["--quiet", "fit", str(start), "--reference", str(d / "ref" / "trajectory.npz"),
-                 "--out", str(out), "--iters", "1", "--force"]) == 0
+    assert (
+        main(
+            [
+                "--quiet",
+                "fit",
+                str(start),
+                "--reference",
+                str(d / "ref" / "trajectory.npz"),
+                "--out",
+                str(out),
+                "--iters",
+                "1",
+                "--force",
+            ]
+        )
+        == 0
+    )
     assert len((out / "log.jsonl").read_text().splitlines()) == 1
 
 
 def test_fit_to_a_video_reference(reference_run, tmp_path):
     d, start = reference_run
     out = tmp_path / "fitv"
-    assert main(["--quiet", "fit", str(start), "--reference", str(d / "ref" / "video.mp4"),
-                 "--out", str(out), "--iters", "2"]) == 0
+    assert (
+        main(
+            [
+                "--quiet",
+                "fit",
+                str(start),
+                "--reference",
+                str(d / "ref" / "video.mp4"),
+                "--out",
+                str(out),
+                "--iters",
+                "2",
+            ]
+        )
+        == 0
+    )
     params = json.loads((out / "params.json").read_text())
     assert params["fit"]["loss"] == "video_match" and len(params["history"]) == 2
     assert all(r["grad_norm"]["total"] > 0 for r in params["history"])
@@ -99,14 +172,21 @@ def test_bad_references_are_refused_naming_both_sides(reference_run, tmp_path, c
         x = z["x"]
     cases = {
         "frames.npz": ({"x": x[:3]}, "reference has 3 frames but .* sim.frames is 4"),
-        "particles.npz": ({"x": x[:, :10]}, "reference has 10 particles but the scene of .* prepares"),
-        "res.npz": ({"frames": np.zeros((4, 40, 40, 3), np.uint8)},
-                    r"reference is 40x40 pixels but .* camera is 48x48"),
+        "particles.npz": (
+            {"x": x[:, :10]},
+            "reference has 10 particles but the scene of .* prepares",
+        ),
+        "res.npz": (
+            {"frames": np.zeros((4, 40, 40, 3), np.uint8)},
+            r"reference is 40x40 pixels but .* camera is 48x48",
+        ),
         "empty.npz": ({"y": np.zeros(3)}, "no 'frames' .* or 'x'"),
     }
     for name, (arrays, pattern) in cases.items():
         np.savez(tmp_path / name, **arrays)
-        rc = main(["fit", str(start), "--reference", str(tmp_path / name), "--out", str(tmp_path / "o")])
+        rc = main(
+            ["fit", str(start), "--reference", str(tmp_path / name), "--out", str(tmp_path / "o")]
+        )
         err = capsys.readouterr().err
         assert rc == 2, name
         assert len(err.strip().splitlines()) == 1, err
@@ -117,8 +197,19 @@ def test_bad_references_are_refused_naming_both_sides(reference_run, tmp_path, c
 
 
 def _fit_cmd(start, ref, out, *extra):
-    return [sys.executable, "-m", "motionphysics", "--quiet", "fit", str(start), "--reference", str(ref),
-            "--out", str(out), *extra]
+    return [
+        sys.executable,
+        "-m",
+        "motionphysics",
+        "--quiet",
+        "fit",
+        str(start),
+        "--reference",
+        str(ref),
+        "--out",
+        str(out),
+        *extra,
+    ]
 
 
 @pytest.mark.slow  # three CLI subprocesses: ~25 s idle; the loop's own SIGKILL test is fast
@@ -127,8 +218,9 @@ def test_killed_fit_resumes_to_the_same_parameters(reference_run, tmp_path):
     ref = d / "ref" / "trajectory.npz"
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[2] / "src")}
     iters = "10"
-    subprocess.run(_fit_cmd(start, ref, tmp_path / "a", "--iters", iters), check=True, env=env,
-                   timeout=600)
+    subprocess.run(
+        _fit_cmd(start, ref, tmp_path / "a", "--iters", iters), check=True, env=env, timeout=600
+    )
     proc = subprocess.Popen(_fit_cmd(start, ref, tmp_path / "b", "--iters", iters), env=env)
     log = tmp_path / "b" / "log.jsonl"
     deadline = time.time() + 300
@@ -140,8 +232,12 @@ def test_killed_fit_resumes_to_the_same_parameters(reference_run, tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert 3 <= len(log.read_text().splitlines()) < 10
-    subprocess.run(_fit_cmd(start, ref, tmp_path / "b", "--iters", iters, "--resume"), check=True,
-                   env=env, timeout=600)
+    subprocess.run(
+        _fit_cmd(start, ref, tmp_path / "b", "--iters", iters, "--resume"),
+        check=True,
+        env=env,
+        timeout=600,
+    )
     a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["theta"]
     b = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["theta"]
     for n in a:

@@ -108,11 +108,13 @@ def test_recovers_stiffness_from_video(tmp_path):
 def test_optimises_initial_velocity_and_per_particle_fields(tmp_path):
     chain = SpringChain(num_frames=8)
     loss = get_loss("trajectory_match")(reference(chain))
-    problem = make_problem(loss, names=("k",), start={"k": TRUE["k"]}, chain=chain,
-                           per_particle=("k",))
+    problem = make_problem(
+        loss, names=("k",), start={"k": TRUE["k"]}, chain=chain, per_particle=("k",)
+    )
     problem.initial_velocity = (0.2, 0.1, 0.0)
-    cfg = OptimizeConfig(loss="trajectory_match", iterations=80, boost=2, lr=0.05, seed=0,
-                         lr_per_param={"k": 1e-6})
+    cfg = OptimizeConfig(
+        loss="trajectory_match", iterations=80, boost=2, lr=0.05, seed=0, lr_per_param={"k": 1e-6}
+    )
     res = optimize(problem, cfg, tmp_path)
     assert res.theta["k"].shape == (chain.num_particles,)
     assert set(res.params["k"]) == {"mean", "min", "max"}
@@ -143,8 +145,9 @@ def test_stops_cleanly_on_nan(tmp_path):
 def test_stops_early_on_convergence(tmp_path):
     chain = SpringChain(num_frames=4)
     loss = get_loss("trajectory_match")(reference(chain))
-    cfg = OptimizeConfig(loss="trajectory_match", iterations=50, boost=1, lr=1e-4, warmup=1,
-                         tolerance=1e-3, seed=0)
+    cfg = OptimizeConfig(
+        loss="trajectory_match", iterations=50, boost=1, lr=1e-4, warmup=1, tolerance=1e-3, seed=0
+    )
     res = optimize(make_problem(loss, chain=chain), cfg, tmp_path)
     assert res.stop_reason == "converged" and res.iterations == 4  # warm-up 1, then 3 calm
 
@@ -174,8 +177,14 @@ def test_resume_in_process_reproduces_uninterrupted(tmp_path):
     b = (tmp_path / "b" / "log.jsonl").read_text().splitlines()
     assert [json.loads(x)["loss"] for x in a] == [json.loads(x)["loss"] for x in b]
     with pytest.raises(UserInputError, match="different config"):
-        optimize(make_problem(loss, chain=chain), cfg, tmp_path / "b", resume=True,
-                 fingerprint="other", iterations=20)
+        optimize(
+            make_problem(loss, chain=chain),
+            cfg,
+            tmp_path / "b",
+            resume=True,
+            fingerprint="other",
+            iterations=20,
+        )
 
 
 def test_sigkill_and_resume_gives_the_same_parameters(tmp_path):
@@ -183,8 +192,9 @@ def test_sigkill_and_resume_gives_the_same_parameters(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(HERE.parents[1] / "src")}
     ref_dir, run_dir = tmp_path / "ref", tmp_path / "run"
     iters = 16
-    subprocess.run([sys.executable, str(script), str(ref_dir), str(iters)], check=True, env=env,
-                   timeout=300)
+    subprocess.run(
+        [sys.executable, str(script), str(ref_dir), str(iters)], check=True, env=env, timeout=300
+    )
     proc = subprocess.Popen([sys.executable, str(script), str(run_dir), str(iters)], env=env)
     log = run_dir / "log.jsonl"
     deadline = time.time() + 120
@@ -197,8 +207,12 @@ def test_sigkill_and_resume_gives_the_same_parameters(tmp_path):
     proc.wait()
     done = len(log.read_text().splitlines())
     assert 4 <= done < iters
-    subprocess.run([sys.executable, str(script), str(run_dir), str(iters), "--resume"], check=True,
-                   env=env, timeout=300)
+    subprocess.run(
+        [sys.executable, str(script), str(run_dir), str(iters), "--resume"],
+        check=True,
+        env=env,
+        timeout=300,
+    )
     a = torch.load(ref_dir / "final_theta.pt")
     b = torch.load(run_dir / "final_theta.pt")
     for n in a:

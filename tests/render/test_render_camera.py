@@ -41,8 +41,9 @@ def test_orbit_looks_at_target_and_up_is_up(az, el):
     assert z.item() == pytest.approx(2.5)
     # Azimuth counter-clockwise from +x about z, elevation above the horizon.
     a, e = math.radians(az), math.radians(el)
-    expect = target + 2.5 * torch.tensor([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a),
-                                          math.sin(e)], dtype=torch.float64)
+    expect = target + 2.5 * torch.tensor(
+        [math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)], dtype=torch.float64
+    )
     assert torch.allclose(cam.position, expect, atol=1e-12)
     if abs(el) < 89:
         up_pt = target + torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64)
@@ -53,14 +54,24 @@ def test_orbit_looks_at_target_and_up_is_up(az, el):
 
 def test_azimuth_90_puts_camera_on_plus_y():
     cam = orbit_camera(90.0, 0.0, 3.0)
-    assert torch.allclose(cam.position, torch.tensor([0.0, 3.0, 0.0], dtype=torch.float64), atol=1e-12)
+    assert torch.allclose(
+        cam.position, torch.tensor([0.0, 3.0, 0.0], dtype=torch.float64), atol=1e-12
+    )
 
 
 def test_inria_cameras_json(tmp_path):
     # c2w columns: camera x = world +y, camera y = world -z, camera z = world -x (looks at origin).
     c2w = [[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
-    entry = {"id": 0, "img_name": "a", "width": 80, "height": 60, "position": [4.0, 0.0, 0.0],
-             "rotation": c2w, "fx": 70.0, "fy": 71.0}
+    entry = {
+        "id": 0,
+        "img_name": "a",
+        "width": 80,
+        "height": 60,
+        "position": [4.0, 0.0, 0.0],
+        "rotation": c2w,
+        "fx": 70.0,
+        "fy": 71.0,
+    }
     path = tmp_path / "cameras.json"
     path.write_text(json.dumps([entry]))
     (cam,) = load_inria_cameras(path)
@@ -75,8 +86,10 @@ def test_inria_cameras_json(tmp_path):
         camera_from_config(CameraConfig(cameras_json=str(path), camera_index=3))
 
 
-@pytest.mark.parametrize("text,match", [("not json", "not valid JSON"), ("[]", "non-empty"),
-                                        ('[{"width": 3}]', "expected fields")])
+@pytest.mark.parametrize(
+    "text,match",
+    [("not json", "not valid JSON"), ("[]", "non-empty"), ('[{"width": 3}]', "expected fields")],
+)
 def test_inria_cameras_bad_input(tmp_path, text, match):
     path = tmp_path / "cameras.json"
     path.write_text(text)
@@ -87,15 +100,19 @@ def test_inria_cameras_bad_input(tmp_path, text, match):
 def test_camera_from_config_default_matches_orbit():
     cfg = CameraConfig()
     cam = camera_from_config(cfg)
-    ref = orbit_camera(cfg.azimuth, cfg.elevation, cfg.radius, cfg.look_at, cfg.fov, cfg.width, cfg.height)
+    ref = orbit_camera(
+        cfg.azimuth, cfg.elevation, cfg.radius, cfg.look_at, cfg.fov, cfg.width, cfg.height
+    )
     assert torch.equal(cam.world_to_cam, ref.world_to_cam)
 
 
 def test_frame_bounds_sees_whole_box():
     lo, hi = (-1.0, -0.5, 0.0), (1.0, 0.5, 2.0)
     cam = frame_bounds(lo, hi, 30.0, 20.0, 45.0, 128, 96)
-    corners = torch.tensor([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])], dtype=torch.float64)
+    corners = torch.tensor(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])],
+        dtype=torch.float64,
+    )
     uv, z = cam.project(corners)
     assert (z > 0).all()
     assert (uv[:, 0] > 0).all() and (uv[:, 0] < 128).all()

@@ -61,7 +61,9 @@ def test_sh_basis_is_orthonormal_and_matches_3dgs_signs():
     assert Y[0, 0].item() == pytest.approx(C0)
     # Degree 1 in 3DGS order and signs: (-C1 y, C1 z, -C1 x).
     c1 = math.sqrt(3 / (4 * math.pi))
-    torch.testing.assert_close(Y[:, 1:4], torch.stack([-c1 * d[:, 1], c1 * d[:, 2], -c1 * d[:, 0]], 1))
+    torch.testing.assert_close(
+        Y[:, 1:4], torch.stack([-c1 * d[:, 1], c1 * d[:, 2], -c1 * d[:, 0]], 1)
+    )
 
 
 def test_sh_degree0_clamp_and_gradients():
@@ -77,7 +79,9 @@ def test_sh_degree0_clamp_and_gradients():
 
 def test_polar_rotation_properties_and_gradient():
     g = torch.Generator().manual_seed(1)
-    F = torch.eye(3, dtype=torch.float64) + 0.4 * torch.randn(6, 3, 3, generator=g, dtype=torch.float64)
+    F = torch.eye(3, dtype=torch.float64) + 0.4 * torch.randn(
+        6, 3, 3, generator=g, dtype=torch.float64
+    )
     F[0] = torch.eye(3)  # repeated singular values: SVD's own backward is singular here
     F[1] = quat_to_rotmat(torch.tensor([0.3, 0.5, -0.2, 0.7], dtype=torch.float64)) * 1.7
     assert (torch.det(F) > 0).all()
@@ -126,7 +130,9 @@ def test_deform_identity_and_rotation():
     torch.testing.assert_close(colors, sh_to_rgb(splats.sh, d))
     # A rigidly rotated splat seen along d looks like the rest splat seen along Q^T d.
     Q = quat_to_rotmat(torch.tensor([0.9, 0.1, -0.3, 0.2], dtype=torch.float64))
-    means, covs, colors = deform_splats(splats, splats.means, Q.expand(5, 3, 3), parent, offset, cam)
+    means, covs, colors = deform_splats(
+        splats, splats.means, Q.expand(5, 3, 3), parent, offset, cam
+    )
     torch.testing.assert_close(colors, sh_to_rgb(splats.sh, d @ Q))
     torch.testing.assert_close(covs, Q @ splats.covariances() @ Q.T)
 
@@ -139,8 +145,12 @@ def test_deform_gradients_through_x_F_and_sh():
     parent = torch.tensor([0, 0, 1, 1])
     x = torch.randn(2, 3, generator=g, dtype=torch.float64) * 0.2
     offset = torch.randn(4, 3, generator=g, dtype=torch.float64) * 0.05
-    F = torch.eye(3, dtype=torch.float64) + 0.3 * torch.randn(2, 3, 3, generator=g, dtype=torch.float64)
-    wm, wc, wr = (torch.randn(4, *s, generator=g, dtype=torch.float64) for s in ((3,), (3, 3), (3,)))
+    F = torch.eye(3, dtype=torch.float64) + 0.3 * torch.randn(
+        2, 3, 3, generator=g, dtype=torch.float64
+    )
+    wm, wc, wr = (
+        torch.randn(4, *s, generator=g, dtype=torch.float64) for s in ((3,), (3, 3), (3,))
+    )
 
     def loss(x, F, sh):
         s = GaussianScene(splats.means, splats.log_scales, splats.quats, splats.logit_opacities, sh)
@@ -153,12 +163,17 @@ def test_deform_gradients_through_x_F_and_sh():
 @pytest.mark.parametrize("backend", ["warp", pytest.param("torch", marks=pytest.mark.slow)])
 def test_render_frames_gradients(backend):
     splats = _tiny_splats(3, 1, seed=5)
-    sim_scene = SimpleNamespace(splats=splats, splat_parent=torch.arange(3),
-                                splat_offset=torch.zeros(3, 3, dtype=torch.float64))
+    sim_scene = SimpleNamespace(
+        splats=splats,
+        splat_parent=torch.arange(3),
+        splat_offset=torch.zeros(3, 3, dtype=torch.float64),
+    )
     cam = orbit_camera(30.0, 20.0, 1.6, (0, 0, 0), 50.0, 10, 8)
     g = torch.Generator().manual_seed(6)
     xs = splats.means[None] + 0.05 * torch.randn(2, 3, 3, generator=g, dtype=torch.float64)
-    Fs = torch.eye(3, dtype=torch.float64) + 0.2 * torch.randn(2, 3, 3, 3, generator=g, dtype=torch.float64)
+    Fs = torch.eye(3, dtype=torch.float64) + 0.2 * torch.randn(
+        2, 3, 3, 3, generator=g, dtype=torch.float64
+    )
     w = torch.rand(2, 8, 10, 3, generator=g, dtype=torch.float64)
 
     def loss(xs, Fs):

@@ -27,4 +27,3 @@ def test_gsplat_matches_cpu_renderer():
     assert diff.mean() < 2e-3 and diff.max() < 0.05
     (gpu.rgb.sum()).backward()
     assert all(t.grad is not None and torch.isfinite(t.grad).all() for t in leaves)
-

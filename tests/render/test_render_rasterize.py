@@ -42,8 +42,12 @@ def brute_force(means, covs, colors, opac, cam, bg):
             continue
         tx = np.clip(p[0] / p[2], -lim_x, lim_x) * p[2]
         ty = np.clip(p[1] / p[2], -lim_y, lim_y) * p[2]
-        J = np.array([[cam.fx / p[2], 0, -cam.fx * tx / p[2] ** 2],
-                      [0, cam.fy / p[2], -cam.fy * ty / p[2] ** 2]])
+        J = np.array(
+            [
+                [cam.fx / p[2], 0, -cam.fx * tx / p[2] ** 2],
+                [0, cam.fy / p[2], -cam.fy * ty / p[2] ** 2],
+            ]
+        )
         cov2 = J @ R @ S[i] @ R.T @ J.T + 0.3 * np.eye(2)
         mu = np.array([cam.fx * p[0] / p[2] + cam.cx, cam.fy * p[1] / p[2] + cam.cy])
         splats.append((p[2], mu, np.linalg.inv(cov2), o[i], c[i]))
@@ -143,7 +147,9 @@ def test_gradients_match_finite_differences(backend):
     # opacities below 0.7: no 0.99 clamp kink, and T stays far above the 1e-4 stop.
     scene = random_scene(5, seed=4, spread=0.3, scale=0.12, opac=(0.2, 0.7))
     g = torch.Generator().manual_seed(1)
-    w_rgb, w_a, w_d = (torch.rand(10, 12, *s, generator=g, dtype=torch.float64) for s in ((3,), (), ()))
+    w_rgb, w_a, w_d = (
+        torch.rand(10, 12, *s, generator=g, dtype=torch.float64) for s in ((3,), (), ())
+    )
 
     def loss(means, covs, colors, opac):
         out = rasterize(means, covs, colors, opac, cam, (0.3, 0.6, 0.9), backend=backend)
@@ -159,8 +165,10 @@ def test_smooth_cut_removes_gradient_bias_of_hard_cut():
     means, covs, colors, opac = random_scene(12, seed=5, spread=0.35, scale=0.05, opac=(0.3, 0.9))
     errs = {}
     for cut in ("hard", "smooth"):
+
         def loss(m, cut=cut):
             return rasterize_reference(m, covs, colors, opac, cam, (1, 1, 1), cut=cut).rgb.sum()
+
         leaf = means.clone().requires_grad_()
         loss(leaf).backward()
         h = 1e-4  # world metres: about 0.002 px at this distance
@@ -181,15 +189,22 @@ def test_projection_matches_monte_carlo_cov():
     # EWA's linearisation vs sampling the 3D Gaussian and projecting exactly (small splat).
     cam = orbit_camera(10.0, 15.0, 3.0, (0, 0, 0), 45.0, 64, 64)
     mean = torch.tensor([[0.2, -0.1, 0.1]], dtype=torch.float64)
-    A = torch.tensor([[0.02, 0.005, 0.0], [0.0, 0.01, 0.003], [0.004, 0.0, 0.015]], dtype=torch.float64)
+    A = torch.tensor(
+        [[0.02, 0.005, 0.0], [0.0, 0.01, 0.003], [0.004, 0.0, 0.015]], dtype=torch.float64
+    )
     cov = (A @ A.T)[None]
     proj = project_gaussians(mean, cov, torch.ones(1, dtype=torch.float64), cam)
     g = torch.Generator().manual_seed(0)
-    pts = mean + torch.randn(200000, 3, generator=g, dtype=torch.float64) @ torch.linalg.cholesky(cov[0]).T
+    pts = (
+        mean
+        + torch.randn(200000, 3, generator=g, dtype=torch.float64) @ torch.linalg.cholesky(cov[0]).T
+    )
     uv, _ = cam.project(pts)
     emp = torch.cov(uv.T)
     c = proj.conics[0]
-    cov2 = torch.linalg.inv(torch.tensor([[c[0], c[1]], [c[1], c[2]]])) - 0.3 * torch.eye(2, dtype=torch.float64)
+    cov2 = torch.linalg.inv(torch.tensor([[c[0], c[1]], [c[1], c[2]]])) - 0.3 * torch.eye(
+        2, dtype=torch.float64
+    )
     # MC standard error ~ sqrt(2/200000) = 0.3%; linearisation error ~ (sigma/z)^2 < 0.1%.
     torch.testing.assert_close(emp, cov2, rtol=0.02, atol=0.02 * cov2.abs().max().item())
     torch.testing.assert_close(uv.mean(0), proj.means2d[0], rtol=0, atol=0.05)
@@ -219,15 +234,33 @@ def test_behind_camera_and_offscreen_are_culled():
 
 def test_empty_scene_and_bad_shapes():
     cam = orbit_camera(0.0, 0.0, 2.0, width=16, height=8)
-    out = rasterize(torch.zeros(0, 3), torch.zeros(0, 3, 3), torch.zeros(0, 3), torch.zeros(0), cam,
-                    (0.1, 0.2, 0.3))
+    out = rasterize(
+        torch.zeros(0, 3),
+        torch.zeros(0, 3, 3),
+        torch.zeros(0, 3),
+        torch.zeros(0),
+        cam,
+        (0.1, 0.2, 0.3),
+    )
     assert out.rgb.shape == (8, 16, 3)
     assert torch.allclose(out.rgb, torch.tensor([0.1, 0.2, 0.3]).expand(8, 16, 3))
     with pytest.raises(UserInputError, match="covs"):
         rasterize(torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(2), cam)
     with pytest.raises(UserInputError, match="backend"):
-        rasterize(torch.zeros(0, 3), torch.zeros(0, 3, 3), torch.zeros(0, 3), torch.zeros(0), cam,
-                  backend="vulkan")
+        rasterize(
+            torch.zeros(0, 3),
+            torch.zeros(0, 3, 3),
+            torch.zeros(0, 3),
+            torch.zeros(0),
+            cam,
+            backend="vulkan",
+        )
     with pytest.raises(UserInputError, match="gsplat"):
-        rasterize(torch.zeros(0, 3), torch.zeros(0, 3, 3), torch.zeros(0, 3), torch.zeros(0), cam,
-                  backend="gsplat")
+        rasterize(
+            torch.zeros(0, 3),
+            torch.zeros(0, 3, 3),
+            torch.zeros(0, 3),
+            torch.zeros(0),
+            cam,
+            backend="gsplat",
+        )

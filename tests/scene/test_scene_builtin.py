@@ -24,7 +24,17 @@ def _extent(s):
 
 
 def test_required_builtins_exist():
-    for name in ("sphere", "cube", "column", "torus", "rod", "bird", "duck", "bird_textured", "bird_plain"):
+    for name in (
+        "sphere",
+        "cube",
+        "column",
+        "torus",
+        "rod",
+        "bird",
+        "duck",
+        "bird_textured",
+        "bird_plain",
+    ):
         assert name in NAMES
     assert all(desc and "\n" not in desc for _, desc in list_builtins())
 
@@ -49,7 +59,9 @@ def test_builtin_is_normalised_and_sane(scenes, name):
 
 def test_builtins_are_deterministic(scenes):
     again = load_scene("builtin:duck")
-    assert torch.equal(again.means, scenes["duck"].means) and torch.equal(again.sh, scenes["duck"].sh)
+    assert torch.equal(again.means, scenes["duck"].means) and torch.equal(
+        again.sh, scenes["duck"].sh
+    )
 
 
 def test_shape_proportions(scenes):
@@ -61,7 +73,9 @@ def test_shape_proportions(scenes):
     # Ring: no splat near the axis, outer radius 0.5, thickness 0.3 of the diameter.
     assert float(r_xy.min()) > 0.15 and abs(float(r_xy.max()) - 0.5) < 0.01
     sphere = scenes["sphere"].means.double()
-    np.testing.assert_allclose(sphere.norm(dim=1).numpy(), 0.5, atol=2e-3)  # on the ellipsoid exactly (renormalised)
+    np.testing.assert_allclose(
+        sphere.norm(dim=1).numpy(), 0.5, atol=2e-3
+    )  # on the ellipsoid exactly (renormalised)
 
 
 def test_appearance_variants_share_the_shape(scenes):
@@ -79,7 +93,9 @@ def test_paper_bird_variants(scenes):
     assert torch.equal(bird.means, red.means)
     body = (bird.base_colors() - torch.tensor([0.22, 0.42, 0.85])).abs().max(dim=1).values < 1e-5
     assert int(body.sum()) > bird.num // 3  # the body is the largest part
-    torch.testing.assert_close(red.base_colors()[body], torch.tensor([[0.85, 0.2, 0.18]]).expand(int(body.sum()), 3))
+    torch.testing.assert_close(
+        red.base_colors()[body], torch.tensor([[0.85, 0.2, 0.18]]).expand(int(body.sum()), 3)
+    )
     # No tail and no beak: shorter in x than the full bird before normalisation, so after
     # normalisation its y/x aspect is larger, and no beak-yellow remains.
     assert _extent(simple)[1] > _extent(bird)[1] * 1.1

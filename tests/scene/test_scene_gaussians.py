@@ -43,21 +43,34 @@ def test_quaternion_helpers_round_trip_and_compose():
     np.testing.assert_allclose(quat_to_rotmat(q).numpy(), r.as_matrix(), atol=1e-12)
     # Near-180-degree rotations are the hard case for naive conversions.
     flips = torch.from_numpy(Rotation.from_rotvec(np.pi * np.eye(3) * (1 - 1e-9)).as_matrix())
-    np.testing.assert_allclose(quat_to_rotmat(rotmat_to_quat(flips)).numpy(), flips.numpy(), atol=1e-8)
+    np.testing.assert_allclose(
+        quat_to_rotmat(rotmat_to_quat(flips)).numpy(), flips.numpy(), atol=1e-8
+    )
     a, b = q[:100], q[100:]
     np.testing.assert_allclose(
-        quat_to_rotmat(quat_multiply(a, b)).numpy(), (quat_to_rotmat(a) @ quat_to_rotmat(b)).numpy(), atol=1e-12
+        quat_to_rotmat(quat_multiply(a, b)).numpy(),
+        (quat_to_rotmat(a) @ quat_to_rotmat(b)).numpy(),
+        atol=1e-12,
     )
 
 
 def test_base_colors_subset_concat():
     s = GaussianScene.from_activated(
-        means=np.zeros((3, 3)), scales=np.full((3, 3), 0.1), rotations=np.tile([1.0, 0, 0, 0], (3, 1)),
-        opacities=[0.1, 0.5, 0.9], colors=[[0, 0.5, 1], [1, 1, 1], [0.2, 0.3, 0.4]],
+        means=np.zeros((3, 3)),
+        scales=np.full((3, 3), 0.1),
+        rotations=np.tile([1.0, 0, 0, 0], (3, 1)),
+        opacities=[0.1, 0.5, 0.9],
+        colors=[[0, 0.5, 1], [1, 1, 1], [0.2, 0.3, 0.4]],
     )
-    np.testing.assert_allclose(s.base_colors().numpy(), [[0, 0.5, 1], [1, 1, 1], [0.2, 0.3, 0.4]], atol=1e-6)
+    np.testing.assert_allclose(
+        s.base_colors().numpy(), [[0, 0.5, 1], [1, 1, 1], [0.2, 0.3, 0.4]], atol=1e-6
+    )
     np.testing.assert_allclose(s.opacities.numpy(), [0.1, 0.5, 0.9], atol=1e-6)
-    np.testing.assert_allclose(s.sh[:, 0].numpy(), (np.array([[0, 0.5, 1], [1, 1, 1], [0.2, 0.3, 0.4]]) - 0.5) / SH_C0, rtol=1e-6)
+    np.testing.assert_allclose(
+        s.sh[:, 0].numpy(),
+        (np.array([[0, 0.5, 1], [1, 1, 1], [0.2, 0.3, 0.4]]) - 0.5) / SH_C0,
+        rtol=1e-6,
+    )
     sub = s.subset(torch.tensor([False, True, True]))
     assert sub.num == 2 and torch.equal(sub.sh, s.sh[1:])
     hi = GaussianScene(s.means, s.log_scales, s.quats, s.logit_opacities, torch.ones(3, 16, 3))
@@ -83,7 +96,9 @@ def test_rotate_sh_keeps_appearance_attached(degree):
     torch.testing.assert_close(
         eval_sh(newb, torch.einsum("nij,nj->ni", rb, d)), eval_sh(sh, d), rtol=0, atol=1e-12
     )
-    torch.testing.assert_close(rotate_sh(sh, torch.eye(3, dtype=torch.float64)), sh, rtol=0, atol=1e-12)
+    torch.testing.assert_close(
+        rotate_sh(sh, torch.eye(3, dtype=torch.float64)), sh, rtol=0, atol=1e-12
+    )
 
 
 def test_rotate_sh_matches_3dgs_band1_closed_form():

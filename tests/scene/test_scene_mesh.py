@@ -80,7 +80,9 @@ def test_sampling_is_deterministic(box):
 
 def test_face_and_vertex_colours(tmp_path):
     m = trimesh.creation.icosphere(subdivisions=2)
-    fc = np.where(m.triangles_center[:, 2:3] > 0, [[255, 0, 0, 255]], [[0, 0, 255, 255]]).astype(np.uint8)
+    fc = np.where(m.triangles_center[:, 2:3] > 0, [[255, 0, 0, 255]], [[0, 0, 255, 255]]).astype(
+        np.uint8
+    )
     m.visual.face_colors = fc
     path = tmp_path / "coloured.ply"
     m.export(str(path))
@@ -138,6 +140,8 @@ def test_bad_meshes(tmp_path):
     with pytest.raises(UserInputError) as e:
         load_scene(str(p))
     assert "empty.obj" in str(e.value) and "\n" not in str(e.value)
-    flat = trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), np.array([[0, 1, 2]]))
+    flat = trimesh.Trimesh(
+        np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), np.array([[0, 1, 2]])
+    )
     with pytest.raises(UserInputError, match="area"):
         mesh_to_gaussians(flat, origin="flat.obj")

@@ -16,10 +16,16 @@ from motionphysics.scene.ply import ply_kind
 
 DONUT = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / "donut.ply"
 
-REFERENCE_ORDER = (
-    ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-    + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
-)
+REFERENCE_ORDER = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+]
 
 
 def random_scene(n: int, degree: int, seed: int = 0) -> GaussianScene:
@@ -47,7 +53,9 @@ def test_round_trip_is_bit_exact(tmp_path, degree):
     back = read_ply(path)
     assert back.sh_degree == degree
     for name in ("means", "log_scales", "quats", "logit_opacities", "sh"):
-        np.testing.assert_array_equal(bits(getattr(back, name)), bits(getattr(scene, name)), err_msg=name)
+        np.testing.assert_array_equal(
+            bits(getattr(back, name)), bits(getattr(scene, name)), err_msg=name
+        )
 
 
 def test_written_file_uses_the_reference_layout(tmp_path):
@@ -131,10 +139,13 @@ def test_reads_the_real_donut(tmp_path):
     assert float(s.scales.median()) < 0.01 * float(ext) * 10
     back = read_ply(write_ply(s, tmp_path / "donut_copy.ply"))
     for name in ("means", "log_scales", "quats", "logit_opacities", "sh"):
-        np.testing.assert_array_equal(bits(getattr(back, name)), bits(getattr(s, name)), err_msg=name)
+        np.testing.assert_array_equal(
+            bits(getattr(back, name)), bits(getattr(s, name)), err_msg=name
+        )
 
 
 # ---- bad files --------------------------------------------------------------------------
+
 
 def _write_vertex(path, names, n=2, values=None):
     arr = np.zeros(n, dtype=[(name, "<f4") for name in names])
@@ -145,8 +156,22 @@ def _write_vertex(path, names, n=2, values=None):
     return path
 
 
-FULL = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-        "rot_0", "rot_1", "rot_2", "rot_3"]
+FULL = [
+    "x",
+    "y",
+    "z",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+]
 
 
 def _one_line(err) -> str:
@@ -163,7 +188,9 @@ def test_missing_property_is_a_user_error(tmp_path):
 
 
 def test_bad_rest_count_is_a_user_error(tmp_path):
-    p = _write_vertex(tmp_path / "b.ply", FULL + [f"f_rest_{i}" for i in range(5)], values={"rot_0": 1})
+    p = _write_vertex(
+        tmp_path / "b.ply", FULL + [f"f_rest_{i}" for i in range(5)], values={"rot_0": 1}
+    )
     with pytest.raises(UserInputError) as e:
         read_ply(p)
     assert "f_rest" in _one_line(e) and "5" in str(e.value)
@@ -219,7 +246,9 @@ def test_round_trip_any_finite_float32(tmp_path):
     finite = st.floats(width=32, allow_nan=False, allow_infinity=False)
 
     @settings(max_examples=15, deadline=None)
-    @given(data=arrays(np.float32, (3, 3 + 3 + 4 + 1 + 48), elements=finite), degree=st.integers(0, 3))
+    @given(
+        data=arrays(np.float32, (3, 3 + 3 + 4 + 1 + 48), elements=finite), degree=st.integers(0, 3)
+    )
     def check(data, degree):
         k = (degree + 1) ** 2
         quats = data[:, 6:10].copy()
@@ -229,7 +258,7 @@ def test_round_trip_any_finite_float32(tmp_path):
             log_scales=torch.from_numpy(data[:, 3:6].copy()),
             quats=torch.from_numpy(quats),
             logit_opacities=torch.from_numpy(data[:, 10].copy()),
-            sh=torch.from_numpy(data[:, 11:11 + 3 * k].reshape(3, k, 3).copy()),
+            sh=torch.from_numpy(data[:, 11 : 11 + 3 * k].reshape(3, k, 3).copy()),
         )
         back = read_ply(write_ply(scene, tmp_path / "h.ply"))
         for name in ("means", "log_scales", "quats", "logit_opacities", "sh"):

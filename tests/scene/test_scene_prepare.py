@@ -48,22 +48,37 @@ def test_transform_order_scale_rotate_translate():
     # Reference: scipy, extrinsic rotations applied in list order (z first, then x).
     r = Rotation.from_euler("zx", [90, 30], degrees=True).as_matrix()
     want = 2.0 * s.means.double().numpy() @ r.T + [1.0, 2.0, 3.0]
-    np.testing.assert_allclose(out.splats.means.double().numpy(), want, atol=1e-6)  # float32 of O(1)
-    wrong = 2.0 * s.means.double().numpy() @ Rotation.from_euler("xz", [30, 90], degrees=True).as_matrix().T
+    np.testing.assert_allclose(
+        out.splats.means.double().numpy(), want, atol=1e-6
+    )  # float32 of O(1)
+    wrong = (
+        2.0
+        * s.means.double().numpy()
+        @ Rotation.from_euler("xz", [30, 90], degrees=True).as_matrix().T
+    )
     assert np.abs(out.splats.means.double().numpy() - (wrong + [1, 2, 3])).max() > 0.01
     # Orientation: new axes = R @ old axes; covariance scaled by s^2 and rotated.
     np.testing.assert_allclose(
-        out.splats.rotation_matrices().double().numpy(), r @ s.rotation_matrices().double().numpy(), atol=1e-6
+        out.splats.rotation_matrices().double().numpy(),
+        r @ s.rotation_matrices().double().numpy(),
+        atol=1e-6,
     )
     cov = 4.0 * r @ s.covariances().double().numpy() @ r.T
-    np.testing.assert_allclose(out.splats.covariances().double().numpy(), cov, rtol=1e-5, atol=1e-10)
+    np.testing.assert_allclose(
+        out.splats.covariances().double().numpy(), cov, rtol=1e-5, atol=1e-10
+    )
     # Quaternion storage magnitude kept (unnormalised, as the input).
-    np.testing.assert_allclose(out.splats.quats.norm(dim=1).numpy(), s.quats.norm(dim=1).numpy(), rtol=1e-6)
+    np.testing.assert_allclose(
+        out.splats.quats.norm(dim=1).numpy(), s.quats.norm(dim=1).numpy(), rtol=1e-6
+    )
     # SH rotated with the splat: colour seen along R d equals the old colour along d.
     d = torch.nn.functional.normalize(torch.randn(s.num, 3, dtype=torch.float64), dim=-1)
     rt = torch.from_numpy(r)
-    np.testing.assert_allclose(eval_sh(out.splats.sh.double(), d @ rt.T).numpy(),
-                               eval_sh(s.sh.double(), d).numpy(), atol=1e-5)  # float32 coefficients
+    np.testing.assert_allclose(
+        eval_sh(out.splats.sh.double(), d @ rt.T).numpy(),
+        eval_sh(s.sh.double(), d).numpy(),
+        atol=1e-5,
+    )  # float32 coefficients
     np.testing.assert_allclose(out.source_to_world[:3, :3].numpy(), 2.0 * r, atol=1e-12)
     # No downsampling: each splat is its own particle.
     assert torch.equal(out.splat_parent, torch.arange(s.num))
@@ -81,7 +96,11 @@ def test_opacity_filter_and_crop():
     want = (s.means[10:, 0] >= -0.1).sum()
     assert out.splats.num == int(want) and bool((out.splats.means[:, 0] >= -0.1).all())
     # The crop is in the world frame: after the translation.
-    out = prepare(s, _cfg(translate=(5, 0, 0), crop=(4.9, 10, -10, 10, -10, 10), fill=False), SimConfig(grid=16))
+    out = prepare(
+        s,
+        _cfg(translate=(5, 0, 0), crop=(4.9, 10, -10, 10, -10, 10), fill=False),
+        SimConfig(grid=16),
+    )
     assert out.splats.num == int((s.means[10:, 0] >= -0.1).sum())
 
 
@@ -101,7 +120,7 @@ def test_anisotropy_cap():
 def test_fill_closed_sphere_inside_only_and_volume(sphere):
     out = prepare(sphere, _cfg(translate=(0, 0, 1)), SimConfig(grid=64), GROUND)
     assert out.n_interior > 1000
-    fill = out.particles[out.n_visible:].double()
+    fill = out.particles[out.n_visible :].double()
     r = (fill - torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)).norm(dim=1)
     assert float(r.max()) < 0.5  # all strictly inside the sphere of radius 0.5
     # Fill points sit at cell centres of the simulation grid.
@@ -137,11 +156,15 @@ def test_downsampling_keeps_every_splat_attached(sphere):
     parent = out.splat_parent
     assert parent.dtype == torch.int64 and parent.shape == (sphere.num,)
     assert int(parent.min()) >= 0 and int(parent.max()) < out.n_particles
-    torch.testing.assert_close(out.particles[parent] + out.splat_offset, out.splats.means, atol=1e-6, rtol=0)
+    torch.testing.assert_close(
+        out.particles[parent] + out.splat_offset, out.splats.means, atol=1e-6, rtol=0
+    )
     # Parent = nearest kept particle (brute force, float64).
     d = torch.cdist(out.splats.means.double(), out.particles.double())
     nearest = d.min(dim=1).values
-    np.testing.assert_allclose(d[torch.arange(sphere.num), parent].numpy(), nearest.numpy(), atol=1e-7)
+    np.testing.assert_allclose(
+        d[torch.arange(sphere.num), parent].numpy(), nearest.numpy(), atol=1e-7
+    )
     # Mass is conserved by downsampling.
     assert abs(float(out.volumes.double().sum()) - float(full.volumes.double().sum())) < 1e-5
 
@@ -186,7 +209,9 @@ def test_empty_after_filtering_is_a_user_error(sphere):
 def test_degenerate_splats_do_not_hang():
     # One splat, a huge one, a needle and a pancake: bounded work, finite outputs.
     s = small_scene(n=4)
-    s.log_scales = torch.tensor([[-30.0, -30.0, -30.0], [30.0, 30.0, 30.0], [0.0, -40.0, -40.0], [-40.0, 1.0, 1.0]])
+    s.log_scales = torch.tensor(
+        [[-30.0, -30.0, -30.0], [30.0, 30.0, 30.0], [0.0, -40.0, -40.0], [-40.0, 1.0, 1.0]]
+    )
     out = prepare(s, _cfg(max_anisotropy=1e9), SimConfig(grid=64))
     assert torch.isfinite(out.particles).all() and torch.isfinite(out.volumes).all()
     one = prepare(s.subset([0]), _cfg(), SimConfig(grid=16))
@@ -208,7 +233,13 @@ def test_stratified_subset_covers_space():
     np.testing.assert_array_equal(stratified_subset(pts[:10], 20, rng), np.arange(10))
 
 
-DONUT = __import__("pathlib").Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / "donut.ply"
+DONUT = (
+    __import__("pathlib").Path(__file__).resolve().parents[2].parent
+    / "shared"
+    / "data"
+    / "real"
+    / "donut.ply"
+)
 
 
 @pytest.mark.skipif(not DONUT.is_file(), reason=f"real capture not present at {DONUT}")
@@ -219,8 +250,9 @@ def test_prepare_real_donut():
     out = prepare(d, cfg, SimConfig(grid=48), GROUND)
     assert out.n_particles == 8000
     assert torch.isfinite(out.particles).all() and bool((out.volumes > 0).all())
-    torch.testing.assert_close(out.particles[out.splat_parent] + out.splat_offset, out.splats.means,
-                               atol=1e-6, rtol=0)
+    torch.testing.assert_close(
+        out.particles[out.splat_parent] + out.splat_offset, out.splats.means, atol=1e-6, rtol=0
+    )
     # Every splat follows a particle within a few cells (even downsampling, no far parents).
     assert float(out.splat_offset.norm(dim=1).max()) < 3 * out.dx
     # Occupied volume of a ~1 m donut: between a thin shell and its bounding box.

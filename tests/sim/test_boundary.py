@@ -30,8 +30,9 @@ def program(bcs=(), forces=(), x0=None, dims=DIMS):
     cfg = config_from_dict({"boundary_conditions": list(bcs), "forces": list(forces)})
     if x0 is None:
         x0 = particles()
-    return BoundaryProgram.build(cfg.boundary_conditions, cfg.forces, x0=x0, domain_lo=LO, dx=DX,
-                                 grid_dims=dims)
+    return BoundaryProgram.build(
+        cfg.boundary_conditions, cfg.forces, x0=x0, domain_lo=LO, dx=DX, grid_dims=dims
+    )
 
 
 def particles(n=200, seed=0):
@@ -114,25 +115,87 @@ def ref_bounding_box(v, padding, mu):
     ("bcs", "forces", "fragment"),
     [
         ([{"type": "surface_collider", "normal": [0, 0, 0]}], [], "boundary_conditions[0].normal"),
-        ([{"type": "bounding_box"}, {"type": "clamp_grid", "box": [[1, 0, 0], [0, 1, 1]]}], [],
-         "boundary_conditions[1].box"),
-        ([{"type": "clamp_grid", "box": [[5, 5, 5], [6, 6, 6]]}], [], "boundary_conditions[0].box: contains no grid node"),
-        ([{"type": "clamp_grid", "box": [[0, 0, 0], [1, 1, 1]], "axis": [False, False, False]}], [],
-         "boundary_conditions[0].axis"),
-        ([{"type": "surface_collider", "mode": "sticky", "friction": 0.5}], [], "boundary_conditions[0].friction"),
-        ([{"type": "surface_collider", "mode": "slip", "box": [[0, 0, 0], [1, 1, 1]]}], [],
-         "boundary_conditions[0].box"),
+        (
+            [{"type": "bounding_box"}, {"type": "clamp_grid", "box": [[1, 0, 0], [0, 1, 1]]}],
+            [],
+            "boundary_conditions[1].box",
+        ),
+        (
+            [{"type": "clamp_grid", "box": [[5, 5, 5], [6, 6, 6]]}],
+            [],
+            "boundary_conditions[0].box: contains no grid node",
+        ),
+        (
+            [{"type": "clamp_grid", "box": [[0, 0, 0], [1, 1, 1]], "axis": [False, False, False]}],
+            [],
+            "boundary_conditions[0].axis",
+        ),
+        (
+            [{"type": "surface_collider", "mode": "sticky", "friction": 0.5}],
+            [],
+            "boundary_conditions[0].friction",
+        ),
+        (
+            [{"type": "surface_collider", "mode": "slip", "box": [[0, 0, 0], [1, 1, 1]]}],
+            [],
+            "boundary_conditions[0].box",
+        ),
         ([{"type": "bounding_box", "padding": 5}], [], "boundary_conditions[0].padding"),
         ([{"type": "bounding_box", "start": 1.0, "end": 0.5}], [], "boundary_conditions[0].end"),
-        ([], [{"type": "add_impulse", "force": [0, 0, 1], "box": [[2, 2, 2], [3, 3, 3]]}], "forces[0].box: selects no particles"),
-        ([], [{"type": "add_impulse", "force": [0, 0, 1]},
-              {"type": "add_impulse", "force": [0, 0, 1], "sphere": [[2, 2, 2], 0.1]}], "forces[1].sphere"),
-        ([], [{"type": "add_impulse", "force": [0, 0, 1], "sphere": [[0, 0, 0], 0.0]}], "forces[0].sphere"),
-        ([], [{"type": "add_impulse", "force": [0, 0, 1], "unit": "substeps", "start": 0.5, "end": 2}], "forces[0]"),
-        ([], [{"type": "force_particles_rotation", "center": [0, 0, 0], "axis_direction": [0, 0, 0],
-               "angular_velocity": 1.0}], "forces[0].axis_direction"),
-        ([], [{"type": "force_particles_translation", "velocity": [1, 0, 0], "axis": [False, False, False]}],
-         "forces[0].axis"),
+        (
+            [],
+            [{"type": "add_impulse", "force": [0, 0, 1], "box": [[2, 2, 2], [3, 3, 3]]}],
+            "forces[0].box: selects no particles",
+        ),
+        (
+            [],
+            [
+                {"type": "add_impulse", "force": [0, 0, 1]},
+                {"type": "add_impulse", "force": [0, 0, 1], "sphere": [[2, 2, 2], 0.1]},
+            ],
+            "forces[1].sphere",
+        ),
+        (
+            [],
+            [{"type": "add_impulse", "force": [0, 0, 1], "sphere": [[0, 0, 0], 0.0]}],
+            "forces[0].sphere",
+        ),
+        (
+            [],
+            [
+                {
+                    "type": "add_impulse",
+                    "force": [0, 0, 1],
+                    "unit": "substeps",
+                    "start": 0.5,
+                    "end": 2,
+                }
+            ],
+            "forces[0]",
+        ),
+        (
+            [],
+            [
+                {
+                    "type": "force_particles_rotation",
+                    "center": [0, 0, 0],
+                    "axis_direction": [0, 0, 0],
+                    "angular_velocity": 1.0,
+                }
+            ],
+            "forces[0].axis_direction",
+        ),
+        (
+            [],
+            [
+                {
+                    "type": "force_particles_translation",
+                    "velocity": [1, 0, 0],
+                    "axis": [False, False, False],
+                }
+            ],
+            "forces[0].axis",
+        ),
         ([], [{"type": "release_particles", "layers": 4}], "forces[0].end"),
     ],
 )
@@ -146,33 +209,56 @@ def test_bad_entries_raise_user_input_error_naming_the_entry(bcs, forces, fragme
 
 def test_plain_mappings_are_validated_like_the_config():
     x = particles(20)
-    prog = BoundaryProgram.build([{"type": "surface_collider", "mode": "slip"}],
-                                 [{"type": "add_impulse", "force": [0, 0, 1]}], x0=x, domain_lo=LO, dx=DX,
-                                 grid_dims=DIMS)
+    prog = BoundaryProgram.build(
+        [{"type": "surface_collider", "mode": "slip"}],
+        [{"type": "add_impulse", "force": [0, 0, 1]}],
+        x0=x,
+        domain_lo=LO,
+        dx=DX,
+        grid_dims=DIMS,
+    )
     assert [p.name for p in prog.params] == ["forces[0].force"]
     with pytest.raises(UserInputError, match=r"^forces\[0\]\.force"):
-        BoundaryProgram.build([], [{"type": "add_impulse", "force": [0, 1]}], x0=x, domain_lo=LO, dx=DX,
-                              grid_dims=DIMS)
+        BoundaryProgram.build(
+            [],
+            [{"type": "add_impulse", "force": [0, 1]}],
+            x0=x,
+            domain_lo=LO,
+            dx=DX,
+            grid_dims=DIMS,
+        )
     with pytest.raises(UserInputError, match=r"^boundary_conditions\[0\]"):
         BoundaryProgram.build([{"type": "wall"}], [], x0=x, domain_lo=LO, dx=DX, grid_dims=DIMS)
 
 
 def test_params_are_named_and_settable():
     prog = program(
-        [{"type": "surface_collider", "friction": 0.4}, {"type": "bounding_box", "friction": 0.1},
-         {"type": "surface_collider", "mode": "slip"}],
-        [{"type": "add_constant_force", "force": [1, 2, 3]},
-         {"type": "force_particles_rotation", "center": [0, 0, 0], "angular_velocity": -5.0}],
+        [
+            {"type": "surface_collider", "friction": 0.4},
+            {"type": "bounding_box", "friction": 0.1},
+            {"type": "surface_collider", "mode": "slip"},
+        ],
+        [
+            {"type": "add_constant_force", "force": [1, 2, 3]},
+            {"type": "force_particles_rotation", "center": [0, 0, 0], "angular_velocity": -5.0},
+        ],
     )
     assert [p.name for p in prog.params] == [
-        "boundary_conditions[0].friction", "boundary_conditions[1].friction",
-        "forces[0].force", "forces[1].angular_velocity"]
+        "boundary_conditions[0].friction",
+        "boundary_conditions[1].friction",
+        "forces[0].force",
+        "forces[1].angular_velocity",
+    ]
     vals = prog.param_values()
     np.testing.assert_allclose(vals["forces[0].force"], [1, 2, 3])
     np.testing.assert_allclose(vals["forces[1].angular_velocity"], [-5.0])
-    prog.set_param_values({"forces[0].force": np.array([0.0, 0.0, -1.0]), "boundary_conditions[0].friction": 0.9})
+    prog.set_param_values(
+        {"forces[0].force": np.array([0.0, 0.0, -1.0]), "boundary_conditions[0].friction": 0.9}
+    )
     np.testing.assert_allclose(prog.param("forces[0].force").value(), [0, 0, -1])
-    np.testing.assert_allclose(prog.param("boundary_conditions[0].friction").value(), [0.9], rtol=1e-6)
+    np.testing.assert_allclose(
+        prog.param("boundary_conditions[0].friction").value(), [0.9], rtol=1e-6
+    )
     with pytest.raises(KeyError):
         prog.param("forces[7].force")
     with pytest.raises(ValueError):
@@ -211,20 +297,32 @@ def test_collider_contact_semantics_on_ground():
         prog.apply_grid(None, g, 0.0, 0, 1e-3)
         out = g.numpy()
         above = z > 1e-6
-        np.testing.assert_array_equal(out[above], v[above].astype(np.float32))  # no contact above the plane
+        np.testing.assert_array_equal(
+            out[above], v[above].astype(np.float32)
+        )  # no contact above the plane
         if mode == "sticky":
             np.testing.assert_array_equal(out[~above], 0.0)
         elif mode == "slip":
-            np.testing.assert_allclose(out[:, :, 2], np.broadcast_to([3.0, -1.0, 0.0], out[:, :, 2].shape), atol=ATOL)
-            np.testing.assert_allclose(out[:, :, 1], np.broadcast_to([0.2, 0.0, 0.0], out[:, :, 1].shape), atol=ATOL)
-            np.testing.assert_allclose(out[:, :, 0], np.broadcast_to([1.0, 0.0, 2.0], out[:, :, 0].shape), atol=ATOL)
+            np.testing.assert_allclose(
+                out[:, :, 2], np.broadcast_to([3.0, -1.0, 0.0], out[:, :, 2].shape), atol=ATOL
+            )
+            np.testing.assert_allclose(
+                out[:, :, 1], np.broadcast_to([0.2, 0.0, 0.0], out[:, :, 1].shape), atol=ATOL
+            )
+            np.testing.assert_allclose(
+                out[:, :, 0], np.broadcast_to([1.0, 0.0, 2.0], out[:, :, 0].shape), atol=ATOL
+            )
         else:
             # Coulomb: |vt| reduced by mu |vn| = 1 along its direction; static when |vt| <= 1.
             vt = np.array([3.0, -1.0]) * (1.0 - 1.0 / np.sqrt(10.0))
-            np.testing.assert_allclose(out[:, :, 2, :2], np.broadcast_to(vt, out[:, :, 2, :2].shape), atol=ATOL)
+            np.testing.assert_allclose(
+                out[:, :, 2, :2], np.broadcast_to(vt, out[:, :, 2, :2].shape), atol=ATOL
+            )
             np.testing.assert_allclose(out[:, :, 2, 2], 0.0, atol=ATOL)
             np.testing.assert_allclose(out[:, :, 1], 0.0, atol=ATOL)
-            np.testing.assert_allclose(out[:, :, 0], np.broadcast_to([1.0, 0.0, 2.0], out[:, :, 0].shape), atol=ATOL)
+            np.testing.assert_allclose(
+                out[:, :, 0], np.broadcast_to([1.0, 0.0, 2.0], out[:, :, 0].shape), atol=ATOL
+            )
 
 
 @pytest.mark.parametrize("friction", [0.0, 0.3])
@@ -243,7 +341,16 @@ def test_bounding_box_matches_reference_and_blocks_outward_motion(friction):
 
 def test_clamp_grid_sets_velocity_on_selected_axes_inside_box_only():
     box = [[-0.26, -0.5, 0.0], [0.0, 0.5, 0.25]]
-    prog = program([{"type": "clamp_grid", "box": box, "velocity": [0.5, -1.0, 2.0], "axis": [True, False, True]}])
+    prog = program(
+        [
+            {
+                "type": "clamp_grid",
+                "box": box,
+                "velocity": [0.5, -1.0, 2.0],
+                "axis": [True, False, True],
+            }
+        ]
+    )
     v = random_grid(seed=4)
     g = grid_array(v)
     prog.apply_grid(None, g, 0.0, 0, 1e-3)
@@ -260,8 +367,19 @@ def test_clamp_grid_sets_velocity_on_selected_axes_inside_box_only():
 def test_cut_damps_grid_in_box_and_removes_particles_for_good():
     x = np.array([[0.1, 0.0, 0.2], [-0.1, 0.0, 0.2], [0.3, 0.0, 0.3]])
     box = [[0.0, -0.5, 0.0], [0.5, 0.5, 0.5]]
-    prog = program([{"type": "surface_collider", "mode": "cut", "box": box, "damping": 0.75, "start": 0.0,
-                     "end": 0.01}], x0=x)
+    prog = program(
+        [
+            {
+                "type": "surface_collider",
+                "mode": "cut",
+                "box": box,
+                "damping": 0.75,
+                "start": 0.0,
+                "end": 0.01,
+            }
+        ],
+        x0=x,
+    )
     assert prog.has_cut
     v = random_grid(seed=5)
     g = grid_array(v)
@@ -282,7 +400,9 @@ def test_cut_damps_grid_in_box_and_removes_particles_for_good():
     np.testing.assert_allclose(s_out.x.numpy()[1], moved[1], atol=ATOL)
 
     # After the window: nothing new is removed, removed ones stay removed and frozen.
-    s_in2 = state(np.array([[0.1, 0.0, 0.2], [0.2, 0.0, 0.2], [0.3, 0.0, 0.3]]), active=s_out.active.numpy())
+    s_in2 = state(
+        np.array([[0.1, 0.0, 0.2], [0.2, 0.0, 0.2], [0.3, 0.0, 0.3]]), active=s_out.active.numpy()
+    )
     s_out2 = state(s_in2.x.numpy() + 0.02, v=np.ones((3, 3)))
     prog.apply_post_g2p(None, s_in2, s_out2, 0.5, 500, 1e-3)
     np.testing.assert_array_equal(s_out2.active.numpy(), [0.0, 1.0, 0.0])
@@ -292,7 +412,10 @@ def test_cut_damps_grid_in_box_and_removes_particles_for_good():
 
 def test_cut_without_box_uses_half_space_behind_plane():
     x = np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.3]])
-    prog = program([{"type": "surface_collider", "mode": "cut", "point": [0, 0, 0.2], "normal": [0, 0, 1]}], x0=x)
+    prog = program(
+        [{"type": "surface_collider", "mode": "cut", "point": [0, 0, 0.2], "normal": [0, 0, 1]}],
+        x0=x,
+    )
     s_in, s_out = state(x), state(x + 0.01)
     prog.apply_post_g2p(None, s_in, s_out, 0.0, 0, 1e-3)
     np.testing.assert_array_equal(s_out.active.numpy(), [0.0, 1.0])
@@ -300,7 +423,11 @@ def test_cut_without_box_uses_half_space_behind_plane():
 
 def test_grid_conditions_apply_in_config_order():
     # clamp then sticky ground: the clamped nodes on the ground end at 0; reversed: clamp wins.
-    clamp = {"type": "clamp_grid", "box": [[-0.5, -0.5, -0.25], [0.5, 0.5, 0.0]], "velocity": [1, 1, 1]}
+    clamp = {
+        "type": "clamp_grid",
+        "box": [[-0.5, -0.5, -0.25], [0.5, 0.5, 0.0]],
+        "velocity": [1, 1, 1],
+    }
     ground = {"type": "surface_collider", "mode": "sticky"}
     v = random_grid(seed=6)
     for order, expected in (([clamp, ground], 0.0), ([ground, clamp], 1.0)):
@@ -315,9 +442,15 @@ def test_grid_conditions_apply_in_config_order():
 def test_time_windows_start_and_stop_on_time_in_seconds_and_substeps():
     x = particles(10)
     dt = 0.0025
-    seconds = program(forces=[{"type": "add_impulse", "force": [0, 0, 1], "start": 0.01, "end": 0.02}], x0=x)
-    substeps = program(forces=[{"type": "add_impulse", "force": [0, 0, 1], "start": 3, "end": 5,
-                                "unit": "substeps"}], x0=x)
+    seconds = program(
+        forces=[{"type": "add_impulse", "force": [0, 0, 1], "start": 0.01, "end": 0.02}], x0=x
+    )
+    substeps = program(
+        forces=[
+            {"type": "add_impulse", "force": [0, 0, 1], "start": 3, "end": 5, "unit": "substeps"}
+        ],
+        x0=x,
+    )
     for prog, expected in ((seconds, [4, 5, 6, 7]), (substeps, [3, 4])):
         acted = []
         for s in range(12):
@@ -344,8 +477,13 @@ def test_constant_force_selects_by_box_and_sphere_and_integrates_like_gravity():
     x = particles(300, seed=2)
     box = [[-0.2, -0.2, 0.0], [0.0, 0.2, 0.4]]
     sphere = [[0.1, 0.1, 0.2], 0.12]
-    prog = program(forces=[{"type": "add_constant_force", "force": [1.0, 0.0, 0.0], "box": box},
-                           {"type": "add_constant_force", "force": [0.0, 0.0, -2.0], "sphere": sphere}], x0=x)
+    prog = program(
+        forces=[
+            {"type": "add_constant_force", "force": [1.0, 0.0, 0.0], "box": box},
+            {"type": "add_constant_force", "force": [0.0, 0.0, -2.0], "sphere": sphere},
+        ],
+        x0=x,
+    )
     in_box = np.all((x >= box[0]) & (x <= box[1]), axis=1)
     in_sphere = np.linalg.norm(x - sphere[0], axis=1) <= sphere[1]
     assert prog.selected == {"forces[0]": int(in_box.sum()), "forces[1]": int(in_sphere.sum())}
@@ -361,9 +499,18 @@ def test_constant_force_selects_by_box_and_sphere_and_integrates_like_gravity():
 
 def test_particles_never_leave_the_grid_under_forces():
     x = particles(50)
-    prog = program(forces=[{"type": "add_constant_force", "force": [1e4, -1e4, 1e4]},
-                           {"type": "force_particles_translation", "velocity": [0, 0, -500.0], "axis": [False, False, True],
-                            "sphere": [[0, 0, 0.2], 0.1]}], x0=x)
+    prog = program(
+        forces=[
+            {"type": "add_constant_force", "force": [1e4, -1e4, 1e4]},
+            {
+                "type": "force_particles_translation",
+                "velocity": [0, 0, -500.0],
+                "axis": [False, False, True],
+                "sphere": [[0, 0, 0.2], 0.1],
+            },
+        ],
+        x0=x,
+    )
     x_min, x_max = particle_bounds(LO, DX, DIMS)
     s_in = state(x)
     for s in range(20):
@@ -377,8 +524,16 @@ def test_particles_never_leave_the_grid_under_forces():
 def test_translation_imposes_velocity_and_motion_on_masked_axes():
     x = particles(40) + np.array([0.0, 0.0, 0.05])  # away from the clamp box of particle_bounds
     dt = 0.01
-    prog = program(forces=[{"type": "force_particles_translation", "velocity": [0.3, 0.7, -0.2],
-                            "axis": [True, False, True]}], x0=x)
+    prog = program(
+        forces=[
+            {
+                "type": "force_particles_translation",
+                "velocity": [0.3, 0.7, -0.2],
+                "axis": [True, False, True],
+            }
+        ],
+        x0=x,
+    )
     v_in = np.random.default_rng(3).normal(size=(40, 3))
     s_in = state(x, v=v_in)
     prog.apply_pre_p2g(None, s_in, 0.0, 0, dt)
@@ -392,7 +547,9 @@ def test_translation_imposes_velocity_and_motion_on_masked_axes():
     np.testing.assert_allclose(s_out.x.numpy()[:, 0], x[:, 0] + dt * 0.3, atol=ATOL)
     np.testing.assert_allclose(s_out.x.numpy()[:, 2], x[:, 2] - dt * 0.2, atol=ATOL)
     np.testing.assert_allclose(s_out.x.numpy()[:, 1], g2p_x[:, 1], atol=ATOL)
-    np.testing.assert_allclose(s_out.v.numpy(), np.broadcast_to([0.3, 1.0, -0.2], (40, 3)), atol=ATOL)
+    np.testing.assert_allclose(
+        s_out.v.numpy(), np.broadcast_to([0.3, 1.0, -0.2], (40, 3)), atol=ATOL
+    )
 
 
 def test_rotation_is_exact_rigid_rotation():
@@ -400,8 +557,17 @@ def test_rotation_is_exact_rigid_rotation():
     x = c + np.random.default_rng(4).uniform(-0.1, 0.1, size=(60, 3))  # stays inside the clamp box
     axis = np.array([0.0, 1.0, 1.0]) / np.sqrt(2.0)
     omega, dt, steps = 3.0, 0.01, 50
-    prog = program(forces=[{"type": "force_particles_rotation", "center": c.tolist(),
-                            "axis_direction": [0, 1, 1], "angular_velocity": omega}], x0=x)
+    prog = program(
+        forces=[
+            {
+                "type": "force_particles_rotation",
+                "center": c.tolist(),
+                "axis_direction": [0, 1, 1],
+                "angular_velocity": omega,
+            }
+        ],
+        x0=x,
+    )
     s_in = state(x)
     for s in range(steps):
         s_out = state(s_in.x.numpy())  # a G2P that did nothing
@@ -410,8 +576,11 @@ def test_rotation_is_exact_rigid_rotation():
     theta = omega * dt * steps
     r = x - c
     k = axis
-    expected = c + (r * np.cos(theta) + np.cross(k, r) * np.sin(theta)
-                    + np.outer(r @ k, k) * (1 - np.cos(theta)))
+    expected = c + (
+        r * np.cos(theta)
+        + np.cross(k, r) * np.sin(theta)
+        + np.outer(r @ k, k) * (1 - np.cos(theta))
+    )
     # float32 accumulation over 50 steps of O(0.3) positions: a few 1e-7 per step.
     np.testing.assert_allclose(s_in.x.numpy(), expected, atol=2e-5)
     np.testing.assert_allclose(s_in.v.numpy(), omega * np.cross(k, expected - c), atol=2e-5)
@@ -428,14 +597,26 @@ def test_release_particles_top_layer_first():
     # No particle sits near a slab boundary (0.1, 0.2, 0.3), so the layer of each is unambiguous.
     z = np.array([0.0] + [0.1 * g + 0.01 + 0.02 * j for g in range(4) for j in range(4)] + [0.4])
     x = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
-    prog = program(forces=[{"type": "release_particles", "layers": 4, "release_axis": "z", "start": 0.0,
-                            "end": 0.4}], x0=x)
+    prog = program(
+        forces=[
+            {
+                "type": "release_particles",
+                "layers": 4,
+                "release_axis": "z",
+                "start": 0.0,
+                "end": 0.4,
+            }
+        ],
+        x0=x,
+    )
     layer_of = np.where(z >= 0.4, 0, 3 - np.floor(z / 0.1))  # 0 = top
     dt = 0.01
     for t in (0.0, 0.05, 0.15, 0.25, 0.35, 0.45):
         s_in = state(x, v=np.ones_like(x))
         prog.apply_pre_p2g(None, s_in, t, int(round(t / dt)), dt)
-        s_out = state(x + np.array([0.01, 0.0, -0.01]), v=np.ones_like(x), C=np.ones((len(z), 3, 3)))
+        s_out = state(
+            x + np.array([0.01, 0.0, -0.01]), v=np.ones_like(x), C=np.ones((len(z), 3, 3))
+        )
         prog.apply_post_g2p(None, s_in, s_out, t, int(round(t / dt)), dt)
         released = t >= 0.1 * (layer_of + 1)
         frozen = ~released
@@ -443,7 +624,9 @@ def test_release_particles_top_layer_first():
         np.testing.assert_array_equal(s_in.v.numpy()[released], 1.0)
         np.testing.assert_allclose(s_out.x.numpy()[frozen], x[frozen], atol=ATOL)
         np.testing.assert_array_equal(s_out.C.numpy()[frozen], 0.0)
-        np.testing.assert_allclose(s_out.x.numpy()[released], x[released] + [0.01, 0.0, -0.01], atol=ATOL)
+        np.testing.assert_allclose(
+            s_out.x.numpy()[released], x[released] + [0.01, 0.0, -0.01], atol=ATOL
+        )
         if 0.1 < t < 0.4:
             # the released set is a top slab: every released particle is above every frozen one
             assert released.any() and frozen.any()
@@ -468,7 +651,9 @@ def test_region_launch_touches_only_the_region_and_matches_full_launch():
     off, shape = (1, 2, 0), (5, 4, 6)
     prog.apply_grid(None, part, 0.0, 0, 1e-3, region=(off, shape))
     inside = np.zeros(DIMS, bool)
-    inside[off[0]:off[0] + shape[0], off[1]:off[1] + shape[1], off[2]:off[2] + shape[2]] = True
+    inside[off[0] : off[0] + shape[0], off[1] : off[1] + shape[1], off[2] : off[2] + shape[2]] = (
+        True
+    )
     np.testing.assert_array_equal(part.numpy()[inside], full.numpy()[inside])
     np.testing.assert_array_equal(part.numpy()[~inside], v[~inside].astype(np.float32))
     assert not np.array_equal(full.numpy()[inside], v[inside].astype(np.float32))
@@ -477,28 +662,57 @@ def test_region_launch_touches_only_the_region_and_matches_full_launch():
 
 
 @pytest.mark.cuda
-@pytest.mark.skipif(not wp.is_cuda_available(), reason="needs a CUDA device (Warp sees none on this machine)")
+@pytest.mark.skipif(
+    not wp.is_cuda_available(), reason="needs a CUDA device (Warp sees none on this machine)"
+)
 def test_cuda_matches_cpu():
-    bcs = [{"type": "surface_collider", "friction": 0.3}, {"type": "bounding_box", "friction": 0.2},
-           {"type": "surface_collider", "mode": "cut", "box": [[0.1, -0.5, 0.0], [0.5, 0.5, 0.5]]}]
-    forces = [{"type": "add_constant_force", "force": [1, 0, -3]},
-              {"type": "force_particles_rotation", "center": [0, 0, 0.2], "angular_velocity": 2.0,
-               "sphere": [[0, 0, 0.2], 0.1]},
-              {"type": "release_particles", "layers": 3, "end": 0.2, "box": [[-0.2, -0.2, 0.0], [0.0, 0.2, 0.4]]}]
+    bcs = [
+        {"type": "surface_collider", "friction": 0.3},
+        {"type": "bounding_box", "friction": 0.2},
+        {"type": "surface_collider", "mode": "cut", "box": [[0.1, -0.5, 0.0], [0.5, 0.5, 0.5]]},
+    ]
+    forces = [
+        {"type": "add_constant_force", "force": [1, 0, -3]},
+        {
+            "type": "force_particles_rotation",
+            "center": [0, 0, 0.2],
+            "angular_velocity": 2.0,
+            "sphere": [[0, 0, 0.2], 0.1],
+        },
+        {
+            "type": "release_particles",
+            "layers": 3,
+            "end": 0.2,
+            "box": [[-0.2, -0.2, 0.0], [0.0, 0.2, 0.4]],
+        },
+    ]
     x = particles(100)
     cfg = config_from_dict({"boundary_conditions": bcs, "forces": forces})
     v = random_grid(seed=10)
     out = {}
     for device in ("cpu", "cuda"):
-        prog = BoundaryProgram.build(cfg.boundary_conditions, cfg.forces, x0=x, domain_lo=LO, dx=DX,
-                                     grid_dims=DIMS, device=device)
+        prog = BoundaryProgram.build(
+            cfg.boundary_conditions,
+            cfg.forces,
+            x0=x,
+            domain_lo=LO,
+            dx=DX,
+            grid_dims=DIMS,
+            device=device,
+        )
         g = wp.array(v.astype(np.float32), dtype=wp.vec3, device=device)
         prog.apply_grid(None, g, 0.05, 5, 0.01)
         with wp.ScopedDevice(device):
             s_in, s_out = state(x), state(x + 0.01, v=np.ones((100, 3)))
         prog.apply_pre_p2g(None, s_in, 0.05, 5, 0.01)
         prog.apply_post_g2p(None, s_in, s_out, 0.05, 5, 0.01)
-        out[device] = [g.numpy(), s_in.v.numpy(), s_out.x.numpy(), s_out.v.numpy(), s_out.C.numpy(),
-                       s_out.active.numpy()]
+        out[device] = [
+            g.numpy(),
+            s_in.v.numpy(),
+            s_out.x.numpy(),
+            s_out.v.numpy(),
+            s_out.C.numpy(),
+            s_out.active.numpy(),
+        ]
     for a, b in zip(out["cpu"], out["cuda"], strict=True):
         np.testing.assert_allclose(a, b, atol=1e-5)  # different FMA contraction / sin-cos only

@@ -24,9 +24,14 @@ def test_there_is_an_example_per_material_class():
 @pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.yaml")), ids=lambda p: p.name)
 def test_example_loads_and_has_a_ground(path):
     cfg = load_config(path)
-    grounds = [bc for bc in cfg.boundary_conditions
-               if isinstance(bc, SurfaceCollider) and tuple(bc.point) == (0.0, 0.0, 0.0)
-               and tuple(bc.normal) == (0.0, 0.0, 1.0) and bc.mode != "cut"]
+    grounds = [
+        bc
+        for bc in cfg.boundary_conditions
+        if isinstance(bc, SurfaceCollider)
+        and tuple(bc.point) == (0.0, 0.0, 0.0)
+        and tuple(bc.normal) == (0.0, 0.0, 1.0)
+        and bc.mode != "cut"
+    ]
     assert grounds, "each example stands on a ground collider at z = 0"
     assert cfg.scene.source.startswith("builtin:")
 
@@ -37,7 +42,9 @@ def prepared(path: Path):
     from motionphysics.scene.prepare import prepare
 
     cfg = load_config(path)
-    return cfg, prepare(load_scene(cfg.scene.source), cfg.scene, cfg.sim, list(cfg.boundary_conditions))
+    return cfg, prepare(
+        load_scene(cfg.scene.source), cfg.scene, cfg.sim, list(cfg.boundary_conditions)
+    )
 
 
 @pytest.mark.parametrize("path", OWN, ids=lambda p: p.name)
@@ -45,8 +52,14 @@ def test_example_boundary_program_builds_on_its_scene(path):
     from motionphysics.sim.boundary import BoundaryProgram
 
     cfg, scene = prepared(path)
-    prog = BoundaryProgram.build(cfg.boundary_conditions, cfg.forces, x0=scene.particles,
-                                 domain_lo=scene.domain_lo.numpy(), dx=scene.dx, grid_dims=scene.grid_dims)
+    prog = BoundaryProgram.build(
+        cfg.boundary_conditions,
+        cfg.forces,
+        x0=scene.particles,
+        domain_lo=scene.domain_lo.numpy(),
+        dx=scene.dx,
+        grid_dims=scene.grid_dims,
+    )
     for i, force in enumerate(cfg.forces):
         n = prog.selected[f"forces[{i}]"]
         # a region selection is a real part of the object, not all of it by accident
@@ -84,7 +97,7 @@ def test_example_runs_to_the_end_with_its_behaviour(path):
         k = int(np.argmin(centre))
         assert k < len(centre) - 1 and centre[k:].max() > centre[k] + 0.02, "the ball bounces"
     elif name == "metal_rod":
-        held = (x0[:, 0] <= -0.21)
+        held = x0[:, 0] <= -0.21
         np.testing.assert_allclose(xs[-1][held], x0[held], atol=1e-5)  # the clamped end
         tip = x0[:, 0] >= 0.25
         drop = x0[tip, 2].mean() - xs[-1][tip, 2].mean()
@@ -92,7 +105,12 @@ def test_example_runs_to_the_end_with_its_behaviour(path):
     elif name == "plasticine_blob":
         assert height[-1] < 0.75 * height[0], "squashed"
         assert abs(height[-1] - height[-5]) < 0.1 * height[0], "keeps its new shape"
-    elif name in ("sand_column", "newtonian_dam_break", "newtonian_droplet", "non_newtonian_toothpaste"):
+    elif name in (
+        "sand_column",
+        "newtonian_dam_break",
+        "newtonian_droplet",
+        "non_newtonian_toothpaste",
+    ):
         # collapses / splashes / piles up: the centre comes down and the footprint widens
         # (measured: centre height / 6 to / 20, 95th-percentile radius x 2.4 to x 3.7)
         centre = z.mean(axis=1)

@@ -42,7 +42,9 @@ def _make_grid(u: wp.array3d(dtype=wp.vec3), g: wp.array3d(dtype=wp.vec3)):
 
 
 @wp.kernel
-def _grid_loss(g: wp.array3d(dtype=wp.vec3), w: wp.array3d(dtype=wp.vec3), loss: wp.array(dtype=float)):
+def _grid_loss(
+    g: wp.array3d(dtype=wp.vec3), w: wp.array3d(dtype=wp.vec3), loss: wp.array(dtype=float)
+):
     i, j, k = wp.tid()
     v = g[i, j, k]
     wp.atomic_add(loss, 0, wp.dot(w[i, j, k], v) + 0.5 * wp.dot(v, v))
@@ -86,7 +88,9 @@ def _particle_loss(
 
 def build(bcs=(), forces=(), x0=None):
     cfg = config_from_dict({"boundary_conditions": list(bcs), "forces": list(forces)})
-    return BoundaryProgram.build(cfg.boundary_conditions, cfg.forces, x0=x0, domain_lo=LO, dx=DX, grid_dims=DIMS)
+    return BoundaryProgram.build(
+        cfg.boundary_conditions, cfg.forces, x0=x0, domain_lo=LO, dx=DX, grid_dims=DIMS
+    )
 
 
 def directional_check(loss_fn, grads: dict, inputs: dict, rng):
@@ -97,22 +101,50 @@ def directional_check(loss_fn, grads: dict, inputs: dict, rng):
         minus = {**inputs, name: value - EPS * d}
         fd = (loss_fn(plus) - loss_fn(minus)) / (2 * EPS)
         an = float(np.sum(grads[name] * d))
-        assert an == pytest.approx(fd, rel=RTOL, abs=ATOL), f"d loss / d {name}: adjoint {an}, FD {fd}"
+        assert an == pytest.approx(fd, rel=RTOL, abs=ATOL), (
+            f"d loss / d {name}: adjoint {an}, FD {fd}"
+        )
 
 
 # ------------------------------------------------------------------------------ grid
 
 GRID_CASES = {
-    "clamp_grid": [{"type": "clamp_grid", "box": [[-0.3, -0.3, -0.2], [0.0, 0.3, 0.1]], "velocity": [0.4, -0.3, 0.2],
-                    "axis": [True, False, True]}],
+    "clamp_grid": [
+        {
+            "type": "clamp_grid",
+            "box": [[-0.3, -0.3, -0.2], [0.0, 0.3, 0.1]],
+            "velocity": [0.4, -0.3, 0.2],
+            "axis": [True, False, True],
+        }
+    ],
     "bounding_box": [{"type": "bounding_box", "padding": 2, "friction": 0.3}],
     "sticky": [{"type": "surface_collider", "mode": "sticky", "normal": [0.2, 0.1, 1.0]}],
     "slip": [{"type": "surface_collider", "mode": "slip", "normal": [0.2, 0.1, 1.0]}],
-    "frictional": [{"type": "surface_collider", "mode": "frictional", "friction": 0.4, "normal": [0.2, 0.1, 1.0]}],
-    "cut": [{"type": "surface_collider", "mode": "cut", "box": [[0.0, -0.3, -0.2], [0.3, 0.3, 0.3]], "damping": 0.3}],
-    "chain": [{"type": "surface_collider", "friction": 0.5},
-              {"type": "bounding_box", "padding": 2, "friction": 0.2},
-              {"type": "clamp_grid", "box": [[0.1, -0.3, 0.1], [0.3, 0.3, 0.3]], "velocity": [0.0, 0.5, 0.0]}],
+    "frictional": [
+        {
+            "type": "surface_collider",
+            "mode": "frictional",
+            "friction": 0.4,
+            "normal": [0.2, 0.1, 1.0],
+        }
+    ],
+    "cut": [
+        {
+            "type": "surface_collider",
+            "mode": "cut",
+            "box": [[0.0, -0.3, -0.2], [0.3, 0.3, 0.3]],
+            "damping": 0.3,
+        }
+    ],
+    "chain": [
+        {"type": "surface_collider", "friction": 0.5},
+        {"type": "bounding_box", "padding": 2, "friction": 0.2},
+        {
+            "type": "clamp_grid",
+            "box": [[0.1, -0.3, 0.1], [0.3, 0.3, 0.3]],
+            "velocity": [0.0, 0.5, 0.0],
+        },
+    ],
 }
 
 
@@ -161,7 +193,9 @@ def check_grid_case(case, region):
     tape.backward(loss=loss)
     grads = {"u": u.grad.numpy().astype(np.float64), **prog.param_grads()}
     # the taped forward (saved copies) and the untaped one (true in place) agree
-    assert float(run(values, tape=False)[1].numpy()[0]) == pytest.approx(float(loss.numpy()[0]), rel=1e-6)
+    assert float(run(values, tape=False)[1].numpy()[0]) == pytest.approx(
+        float(loss.numpy()[0]), rel=1e-6
+    )
     w64 = w.numpy().astype(np.float64)
 
     def host_loss(vals):
@@ -182,23 +216,72 @@ def check_grid_case(case, region):
 
 N = 40
 PARTICLE_CASES = {
-    "add_constant_force": ([], [{"type": "add_constant_force", "force": [0.5, -1.0, 2.0], "box": [[-0.3, -0.3, -0.2],
-                                                                                           [0.0, 0.3, 0.3]]}]),
-    "add_impulse": ([], [{"type": "add_impulse", "force": [3.0, 0.0, 1.0], "sphere": [[0.0, 0.0, 0.05], 0.1]}]),
-    "translation": ([], [{"type": "force_particles_translation", "velocity": [0.3, 0.2, -0.1],
-                          "axis": [True, False, True], "box": [[-0.3, -0.3, -0.2], [0.3, 0.0, 0.3]]}]),
-    "rotation": ([], [{"type": "force_particles_rotation", "center": [0.01, -0.02, 0.03],
-                       "axis_direction": [0.3, 1.0, 0.5], "angular_velocity": 2.5}]),
+    "add_constant_force": (
+        [],
+        [
+            {
+                "type": "add_constant_force",
+                "force": [0.5, -1.0, 2.0],
+                "box": [[-0.3, -0.3, -0.2], [0.0, 0.3, 0.3]],
+            }
+        ],
+    ),
+    "add_impulse": (
+        [],
+        [{"type": "add_impulse", "force": [3.0, 0.0, 1.0], "sphere": [[0.0, 0.0, 0.05], 0.1]}],
+    ),
+    "translation": (
+        [],
+        [
+            {
+                "type": "force_particles_translation",
+                "velocity": [0.3, 0.2, -0.1],
+                "axis": [True, False, True],
+                "box": [[-0.3, -0.3, -0.2], [0.3, 0.0, 0.3]],
+            }
+        ],
+    ),
+    "rotation": (
+        [],
+        [
+            {
+                "type": "force_particles_rotation",
+                "center": [0.01, -0.02, 0.03],
+                "axis_direction": [0.3, 1.0, 0.5],
+                "angular_velocity": 2.5,
+            }
+        ],
+    ),
     "release": ([], [{"type": "release_particles", "layers": 3, "start": 0.0, "end": 0.03}]),
-    "cut": ([{"type": "surface_collider", "mode": "cut", "box": [[0.02, -0.3, -0.2], [0.3, 0.3, 0.3]]}], []),
-    "chain": ([{"type": "surface_collider", "mode": "cut", "point": [0, 0, -0.04]}],
-              [{"type": "add_constant_force", "force": [0.0, 0.0, -3.0]},
-               {"type": "force_particles_rotation", "center": [0.0, 0.0, 0.0], "angular_velocity": -1.5,
-                "sphere": [[0.0, 0.0, 0.0], 0.06]},
-               {"type": "force_particles_translation", "velocity": [0.0, 0.0, 0.4], "axis": [False, False, True],
-                "box": [[-0.3, -0.3, 0.02], [0.3, 0.3, 0.3]]},
-               {"type": "release_particles", "layers": 2, "start": 0.0, "end": 0.04, "box": [[-0.3, -0.3, -0.2],
-                                                                                            [-0.02, 0.3, 0.3]]}]),
+    "cut": (
+        [{"type": "surface_collider", "mode": "cut", "box": [[0.02, -0.3, -0.2], [0.3, 0.3, 0.3]]}],
+        [],
+    ),
+    "chain": (
+        [{"type": "surface_collider", "mode": "cut", "point": [0, 0, -0.04]}],
+        [
+            {"type": "add_constant_force", "force": [0.0, 0.0, -3.0]},
+            {
+                "type": "force_particles_rotation",
+                "center": [0.0, 0.0, 0.0],
+                "angular_velocity": -1.5,
+                "sphere": [[0.0, 0.0, 0.0], 0.06],
+            },
+            {
+                "type": "force_particles_translation",
+                "velocity": [0.0, 0.0, 0.4],
+                "axis": [False, False, True],
+                "box": [[-0.3, -0.3, 0.02], [0.3, 0.3, 0.3]],
+            },
+            {
+                "type": "release_particles",
+                "layers": 2,
+                "start": 0.0,
+                "end": 0.04,
+                "box": [[-0.3, -0.3, -0.2], [-0.02, 0.3, 0.3]],
+            },
+        ],
+    ),
 }
 
 
@@ -227,41 +310,68 @@ def test_particle_hook_gradients_match_finite_differences(case):
         v = wp.array(values["v"].astype(np.float32), dtype=wp.vec3, **kw)
         C = wp.array(values["C"].astype(np.float32), dtype=wp.mat33, **kw)
         s_in = _State(x, v, C, wp.array(active0, dtype=float))
-        s_out = _State(wp.zeros(N, dtype=wp.vec3, **kw), wp.zeros(N, dtype=wp.vec3, **kw),
-                       wp.zeros(N, dtype=wp.mat33, **kw), wp.zeros(N, dtype=float))
+        s_out = _State(
+            wp.zeros(N, dtype=wp.vec3, **kw),
+            wp.zeros(N, dtype=wp.vec3, **kw),
+            wp.zeros(N, dtype=wp.mat33, **kw),
+            wp.zeros(N, dtype=float),
+        )
         loss = wp.zeros(1, dtype=float, requires_grad=tape)
         rec = wp.Tape() if tape else None
         if rec is not None:
             rec.__enter__()
         try:
             prog.apply_pre_p2g(None, s_in, t, 1, dt)
-            wp.launch(_fake_g2p, N, inputs=[s_in.x, s_in.v, s_in.C, dt], outputs=[s_out.x, s_out.v, s_out.C])
+            wp.launch(
+                _fake_g2p,
+                N,
+                inputs=[s_in.x, s_in.v, s_in.C, dt],
+                outputs=[s_out.x, s_out.v, s_out.C],
+            )
             prog.apply_post_g2p(None, s_in, s_out, t, 1, dt)
-            wp.launch(_particle_loss, N, inputs=[s_out.x, s_out.v, s_out.C, wx, wv, wc], outputs=[loss])
+            wp.launch(
+                _particle_loss, N, inputs=[s_out.x, s_out.v, s_out.C, wx, wv, wc], outputs=[loss]
+            )
         finally:
             if rec is not None:
                 rec.__exit__(None, None, None)
         return s_in, s_out, loss, rec
 
-    values = {"x": x0, "v": rng.normal(size=(N, 3)), "C": rng.normal(size=(N, 3, 3)),
-              **{k: v.astype(np.float64) for k, v in prog.param_values().items()}}
+    values = {
+        "x": x0,
+        "v": rng.normal(size=(N, 3)),
+        "C": rng.normal(size=(N, 3, 3)),
+        **{k: v.astype(np.float64) for k, v in prog.param_values().items()},
+    }
     s_in, s_out, loss, tape = run(values, tape=True)
     if case in ("cut", "chain"):
         removed = s_out.active.numpy() == 0
         assert 0 < removed.sum() < N  # the case really exercises removal
     prog.zero_param_grads()
     tape.backward(loss=loss)
-    grads = {"x": s_in.x.grad.numpy().astype(np.float64), "v": s_in.v.grad.numpy().astype(np.float64),
-             "C": s_in.C.grad.numpy().astype(np.float64), **prog.param_grads()}
-    assert float(run(values, tape=False)[2].numpy()[0]) == pytest.approx(float(loss.numpy()[0]), rel=1e-6)
+    grads = {
+        "x": s_in.x.grad.numpy().astype(np.float64),
+        "v": s_in.v.grad.numpy().astype(np.float64),
+        "C": s_in.C.grad.numpy().astype(np.float64),
+        **prog.param_grads(),
+    }
+    assert float(run(values, tape=False)[2].numpy()[0]) == pytest.approx(
+        float(loss.numpy()[0]), rel=1e-6
+    )
     wx64, wv64, wc64 = (a.numpy().astype(np.float64) for a in (wx, wv, wc))
 
     def host_loss(vals):
         # float64 on the host (same formula as _particle_loss): FD needs more than float32 sums
         _, out, _, _ = run(vals, tape=False)
         x, v, C = (a.numpy().astype(np.float64) for a in (out.x, out.v, out.C))
-        return float(np.sum(wx64 * x) + np.sum(wv64 * v) + np.sum(wc64 * C)
-                     + 5.0 * np.sum(x * x) + 0.5 * np.sum(v * v) + 0.5 * np.sum(C * C))
+        return float(
+            np.sum(wx64 * x)
+            + np.sum(wv64 * v)
+            + np.sum(wc64 * C)
+            + 5.0 * np.sum(x * x)
+            + 0.5 * np.sum(v * v)
+            + 0.5 * np.sum(C * C)
+        )
 
     directional_check(host_loss, grads, values, rng)
     for k, g in grads.items():

@@ -25,10 +25,25 @@ def block(lo, hi, spacing=DX / 2):
     return pts, np.full(len(pts), spacing**3)
 
 
-def make(points, volumes, bcs, forces=(), domain_lo=(-0.12, -0.12, -0.08), dims=(28, 13, 14), E=1.0e5,
-         velocity=(0.0, 0.0, 0.0)):
-    model = Model.from_particles(volumes, {"class": "elastic", "E": E, "nu": 0.3, "density": 1000.0},
-                                 domain_lo, DX, dims, gravity=(0.0, 0.0, -G), positions=points)
+def make(
+    points,
+    volumes,
+    bcs,
+    forces=(),
+    domain_lo=(-0.12, -0.12, -0.08),
+    dims=(28, 13, 14),
+    E=1.0e5,
+    velocity=(0.0, 0.0, 0.0),
+):
+    model = Model.from_particles(
+        volumes,
+        {"class": "elastic", "E": E, "nu": 0.3, "density": 1000.0},
+        domain_lo,
+        DX,
+        dims,
+        gravity=(0.0, 0.0, -G),
+        positions=points,
+    )
     cfg = config_from_dict({"boundary_conditions": list(bcs), "forces": list(forces)})
     model.boundary = BoundaryProgram.from_config(cfg.boundary_conditions, cfg.forces, model)
     solver = Solver(model)
@@ -51,8 +66,13 @@ def test_block_sliding_on_frictional_ground_stops_at_coulomb_distance():
     # Coulomb: deceleration mu g, stopping distance v0^2 / (2 mu g) = 0.102 m.
     mu, v0 = 0.5, 1.0
     pts, vol = block((-0.05, -0.05, 0.0), (0.05, 0.05, 0.04))
-    ground = {"type": "surface_collider", "point": [0, 0, 0], "normal": [0, 0, 1], "mode": "frictional",
-              "friction": mu}
+    ground = {
+        "type": "surface_collider",
+        "point": [0, 0, 0],
+        "normal": [0, 0, 1],
+        "mode": "frictional",
+        "friction": mu,
+    }
     model, solver, s0, s1 = make(pts, vol, [ground], velocity=(v0, 0.0, 0.0))
     dt = 5e-4  # CFL: c = sqrt(1.35 E / rho) = 11.6 m/s, c dt / dx = 0.29
     t_stop = v0 / (mu * G)
@@ -96,14 +116,21 @@ def test_bounding_box_stops_outward_motion_at_the_walls():
     x_min, x_max = particle_bounds(lo, DX, dims)
     result = {}
     for bcs in ([], [{"type": "bounding_box", "padding": 3}]):
-        model, solver, s0, s1 = make(pts, vol, bcs, domain_lo=lo, dims=dims, velocity=(4.0, 0.0, 3.0))
-        xs, last = run(model, solver, s0, s1, 5e-4, 200, every=20)  # 0.1 s: 0.4 m to travel, 0.22 to the wall
+        model, solver, s0, s1 = make(
+            pts, vol, bcs, domain_lo=lo, dims=dims, velocity=(4.0, 0.0, 3.0)
+        )
+        xs, last = run(
+            model, solver, s0, s1, 5e-4, 200, every=20
+        )  # 0.1 s: 0.4 m to travel, 0.22 to the wall
         assert np.all(xs >= np.asarray(x_min) - 1e-6) and np.all(xs <= np.asarray(x_max) + 1e-6)
         result[bool(bcs)] = (xs, last.v.numpy())
     # Without walls only sim-core's position clamp holds the block: it ends pressed flat
     # against the clamp planes x_max and z_max (so the geometry really reaches the walls).
     xs, _ = result[False]
-    assert np.mean(xs[-1][:, 0] >= x_max[0] - 1e-6) > 0.5 and np.mean(xs[-1][:, 2] >= x_max[2] - 1e-6) > 0.5
+    assert (
+        np.mean(xs[-1][:, 0] >= x_max[0] - 1e-6) > 0.5
+        and np.mean(xs[-1][:, 2] >= x_max[2] - 1e-6) > 0.5
+    )
     # With walls the outward velocity is removed on the 3-node wall layers: the block
     # bounces off them and never reaches the clamp planes.
     xs, v = result[True]
@@ -132,7 +159,9 @@ def test_release_holds_then_lets_layers_fall():
 
 def test_impulse_changes_momentum_by_a_dt_per_substep():
     pts, vol = block((-0.03, -0.03, 0.0), (0.03, 0.03, 0.06))
-    forces = [{"type": "add_impulse", "force": [40.0, 0.0, 0.0], "start": 0, "end": 2, "unit": "substeps"}]
+    forces = [
+        {"type": "add_impulse", "force": [40.0, 0.0, 0.0], "start": 0, "end": 2, "unit": "substeps"}
+    ]
     model, solver, s0, s1 = make(pts, vol, [], forces, dims=(28, 13, 14))
     dt = 5e-4
     _, last = run(model, solver, s0, s1, dt, 6)
@@ -151,7 +180,13 @@ def test_gradients_through_solver_steps_match_finite_differences():
     wp = init_warp()
     pts, vol = block((-0.03, -0.03, 0.0), (0.03, 0.03, 0.03), spacing=DX / 2)
     bcs = [{"type": "surface_collider", "mode": "frictional", "friction": 0.4}]
-    forces = [{"type": "add_constant_force", "force": [3.0, 1.0, -2.0], "box": [[-0.1, -0.1, 0.0], [0.0, 0.1, 0.1]]}]
+    forces = [
+        {
+            "type": "add_constant_force",
+            "force": [3.0, 1.0, -2.0],
+            "box": [[-0.1, -0.1, 0.0], [0.0, 0.1, 0.1]],
+        }
+    ]
     model, solver, _, _ = make(pts, vol, bcs, forces, dims=(14, 13, 12))
     prog = model.boundary
     rng = np.random.default_rng(0)
@@ -160,8 +195,12 @@ def test_gradients_through_solver_steps_match_finite_differences():
     dt, n = 1e-3, 5
 
     def rollout(values, tape=None):
-        prog.set_param_values({k: values[k] for k in ("boundary_conditions[0].friction", "forces[0].force")})
-        states = [model.state(pts, values["v0"], requires_grad=tape is not None) for _ in range(n + 1)]
+        prog.set_param_values(
+            {k: values[k] for k in ("boundary_conditions[0].friction", "forces[0].force")}
+        )
+        states = [
+            model.state(pts, values["v0"], requires_grad=tape is not None) for _ in range(n + 1)
+        ]
         grids = [solver.make_grid(requires_grad=tape is not None) for _ in range(n)]
         if tape is not None:
             tape.__enter__()
@@ -173,7 +212,11 @@ def test_gradients_through_solver_steps_match_finite_differences():
                 tape.__exit__(None, None, None)
         return states
 
-    values = {"v0": v0, "boundary_conditions[0].friction": np.array([0.4]), "forces[0].force": np.array([3.0, 1.0, -2.0])}
+    values = {
+        "v0": v0,
+        "boundary_conditions[0].friction": np.array([0.4]),
+        "forces[0].force": np.array([3.0, 1.0, -2.0]),
+    }
     tape = wp.Tape()
     states = rollout(values, tape)
     states[-1].x.grad.assign(w.astype(np.float32))
@@ -196,6 +239,8 @@ def test_gradients_through_solver_steps_match_finite_differences():
         # 1e-2, 0.05 % at 1e-1). The response is linear in the force away from contact
         # kinks, so a larger step costs no truncation error.
         eps = 1e-1 if name == "forces[0].force" else 1e-2
-        fd = (loss({**values, name: value + eps * d}) - loss({**values, name: value - eps * d})) / (2 * eps)
+        fd = (loss({**values, name: value + eps * d}) - loss({**values, name: value - eps * d})) / (
+            2 * eps
+        )
         an = float(np.sum(grads[name] * d))
         assert an == pytest.approx(fd, rel=2e-2, abs=1e-6), f"{name}: adjoint {an}, FD {fd}"

@@ -34,7 +34,9 @@ velocity imposes, so plastic flow is active and its parameters matter."""
 
 def _block():
     """A 4 x 4 x 3 block of particles (48), spacing dx/2, around the grid centre."""
-    g = np.stack(np.meshgrid(np.arange(4), np.arange(4), np.arange(3), indexing="ij"), -1).reshape(-1, 3)
+    g = np.stack(np.meshgrid(np.arange(4), np.arange(4), np.arange(3), indexing="ij"), -1).reshape(
+        -1, 3
+    )
     x = 0.5 + (g - g.mean(axis=0)) * (DX / 2)
     return x.astype(np.float64)
 
@@ -43,8 +45,16 @@ def _sim(cls: str, gravity=(0.0, 0.0, -9.8), threads: int = 1) -> Simulation:
     x = _block()
     P = x.shape[0]
     mat = {"class": cls, "density": 100.0, **CLASS_PARAMS[cls]}
-    model = Model.from_particles(np.full(P, (DX / 2) ** 3), mat, (0, 0, 0), DX, DIMS, gravity=gravity,
-                                 requires_grad=True, positions=x)
+    model = Model.from_particles(
+        np.full(P, (DX / 2) ** 3),
+        mat,
+        (0, 0, 0),
+        DX,
+        DIMS,
+        gravity=gravity,
+        requires_grad=True,
+        positions=x,
+    )
     state0 = model.state(x, requires_grad=True)
     solver = Solver(model, SolverConfig(threads=threads, min_particles_per_thread=1))
     return Simulation(model, solver, state0, SUBSTEPS, FRAME_DT, frames=3)
@@ -53,7 +63,14 @@ def _sim(cls: str, gravity=(0.0, 0.0, -9.8), threads: int = 1) -> Simulation:
 def _initial_velocity(x: np.ndarray) -> np.ndarray:
     """Shear + compression + spin about the block centre (deforms the block within 24 substeps)."""
     r = x - x.mean(axis=0)
-    v = np.stack([3.0 * r[:, 2] - 8.0 * r[:, 0], -6.0 * r[:, 1] + 2.0 * r[:, 0], 5.0 * r[:, 0] - 4.0 * r[:, 2]], -1)
+    v = np.stack(
+        [
+            3.0 * r[:, 2] - 8.0 * r[:, 0],
+            -6.0 * r[:, 1] + 2.0 * r[:, 0],
+            5.0 * r[:, 0] - 4.0 * r[:, 2],
+        ],
+        -1,
+    )
     return v + np.array([0.3, -0.2, 0.1])
 
 
@@ -66,8 +83,14 @@ def _loss_fn(sim: Simulation, seed: int = 0, grad_mode="full", window=8):
     v_rest = torch.tensor(_initial_velocity(_block()), dtype=torch.float32)
 
     def loss(params: dict[str, torch.Tensor], dv: torch.Tensor) -> torch.Tensor:
-        xs, Fs = simulate(sim, params, frames=FRAMES, initial_velocity=v_rest + dv, grad_mode=grad_mode,
-                          window=window)
+        xs, Fs = simulate(
+            sim,
+            params,
+            frames=FRAMES,
+            initial_velocity=v_rest + dv,
+            grad_mode=grad_mode,
+            window=window,
+        )
         # displacement (not raw positions) keeps float32 round-off of x ~ 0.5 m out of the FD
         return ((xs.double() - x0) * wx).sum() * 10.0 + (Fs.double() * wF).sum()
 
@@ -106,22 +129,34 @@ def test_full_gradient_matches_finite_differences(cls, monkeypatch):
             # several % (measured); at 3e-2 noise and O(h^2) truncation both stay below ~3 %,
             # and the 5 % tolerance also covers particles crossing a yield surface in the step.
             h = 5e-3 if k == "nu" else 3e-2 * base[k]
-            lp = float(loss({**{n: torch.tensor(base[n]) for n in names}, k: torch.tensor(base[k] + h)},
-                            torch.zeros(3)))
-            lm = float(loss({**{n: torch.tensor(base[n]) for n in names}, k: torch.tensor(base[k] - h)},
-                            torch.zeros(3)))
+            lp = float(
+                loss(
+                    {**{n: torch.tensor(base[n]) for n in names}, k: torch.tensor(base[k] + h)},
+                    torch.zeros(3),
+                )
+            )
+            lm = float(
+                loss(
+                    {**{n: torch.tensor(base[n]) for n in names}, k: torch.tensor(base[k] - h)},
+                    torch.zeros(3),
+                )
+            )
             fd = (lp - lm) / (2 * h)
-            assert abs(g[k] - fd) <= 5e-2 * max(abs(fd), abs(g[k])) + 1e-9, \
+            assert abs(g[k] - fd) <= 5e-2 * max(abs(fd), abs(g[k])) + 1e-9, (
                 f"{cls}.{k}: tape {g[k]:.6g} vs FD {fd:.6g}"
-            assert abs(fd) * base[k] > 1e-3, f"{cls}.{k}: loss insensitive (FD {fd:.3g}); test is vacuous"
+            )
+            assert abs(fd) * base[k] > 1e-3, (
+                f"{cls}.{k}: loss insensitive (FD {fd:.3g}); test is vacuous"
+            )
         for a in range(3):
             h = 1e-2
             e = torch.zeros(3)
             e[a] = h
             p0 = {n: torch.tensor(base[n]) for n in names}
             fd = (float(loss(p0, e)) - float(loss(p0, -e))) / (2 * h)
-            assert abs(gv[a] - fd) <= 5e-2 * max(abs(fd), abs(gv[a])) + 1e-6, \
+            assert abs(gv[a] - fd) <= 5e-2 * max(abs(fd), abs(gv[a])) + 1e-6, (
                 f"{cls}.v0[{a}]: tape {gv[a]:.6g} vs FD {fd:.6g}"
+            )
 
 
 def test_truncated_modes():
@@ -155,7 +190,9 @@ def test_per_particle_gradients_sum_to_scene_wide():
         Ep, Em = E_pp.detach().clone(), E_pp.detach().clone()
         Ep[i] += h
         Em[i] -= h
-        fd = (float(loss({"E": Ep}, torch.zeros(3))) - float(loss({"E": Em}, torch.zeros(3)))) / (2 * h)
+        fd = (float(loss({"E": Ep}, torch.zeros(3))) - float(loss({"E": Em}, torch.zeros(3)))) / (
+            2 * h
+        )
     assert float(E_pp.grad[i]) == pytest.approx(fd, rel=1e-1)
 
 
@@ -165,8 +202,12 @@ def test_mixed_materials_gradients():
     P = x.shape[0]
     cls = np.where(x[:, 0] < 0.5, 0, 2)  # elastic | metal
     mat = {"class": cls, "density": 100.0, "E": 4.0e4, "nu": 0.3, "tau_Y": 300.0}
-    model = Model.from_particles(np.full(P, (DX / 2) ** 3), mat, (0, 0, 0), DX, DIMS, requires_grad=True)
-    sim = Simulation(model, Solver(model), model.state(x, requires_grad=True), SUBSTEPS, FRAME_DT, frames=3)
+    model = Model.from_particles(
+        np.full(P, (DX / 2) ** 3), mat, (0, 0, 0), DX, DIMS, requires_grad=True
+    )
+    sim = Simulation(
+        model, Solver(model), model.state(x, requires_grad=True), SUBSTEPS, FRAME_DT, frames=3
+    )
     loss = _loss_fn(sim)
     tau = torch.full((P,), 300.0, requires_grad=True)
     E = torch.full((P,), 4.0e4, requires_grad=True)

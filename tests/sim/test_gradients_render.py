@@ -34,14 +34,24 @@ def _setup():
         logit_opacities=torch.full((P,), 2.0),
         sh=torch.tensor(rng.uniform(-1.0, 1.0, (P, 1, 3)), dtype=torch.float32),
     )
-    scene = SimpleNamespace(splats=splats, splat_parent=torch.arange(P), splat_offset=torch.zeros(P, 3))
-    model = Model.from_particles(np.full(P, (DX / 2) ** 3), {"class": "elastic", "density": 100.0,
-                                 "E": 4.0e4, "nu": 0.3}, (0, 0, 0), DX, (17, 17, 17),
-                                 gravity=(0.0, 0.0, 0.0), requires_grad=True)
+    scene = SimpleNamespace(
+        splats=splats, splat_parent=torch.arange(P), splat_offset=torch.zeros(P, 3)
+    )
+    model = Model.from_particles(
+        np.full(P, (DX / 2) ** 3),
+        {"class": "elastic", "density": 100.0, "E": 4.0e4, "nu": 0.3},
+        (0, 0, 0),
+        DX,
+        (17, 17, 17),
+        gravity=(0.0, 0.0, 0.0),
+        requires_grad=True,
+    )
     sim = Simulation(model, Solver(model), model.state(x, requires_grad=True), 12, 4.0e-3, frames=3)
     r = x - x.mean(axis=0)
-    v0 = torch.tensor(np.stack([-8.0 * r[:, 0] + 3.0 * r[:, 2], 6.0 * r[:, 1], 5.0 * r[:, 0]], -1),
-                      dtype=torch.float32)
+    v0 = torch.tensor(
+        np.stack([-8.0 * r[:, 0] + 3.0 * r[:, 2], 6.0 * r[:, 1], 5.0 * r[:, 0]], -1),
+        dtype=torch.float32,
+    )
     cam = orbit_camera(30.0, 20.0, 0.6, look_at=(0.5, 0.5, 0.5), fov=40.0, width=24, height=24)
     target = torch.tensor(rng.uniform(0.0, 1.0, (1, 24, 24, 3)), dtype=torch.float32)
     return scene, sim, v0, cam, target

@@ -101,8 +101,15 @@ def _state(x, v, C, F, requires_grad=False):
 def _model(P, cls="elastic", grav=(0.0, 0.0, 0.0), requires_grad=False, vol=None, **mat):
     mat = mat or {"E": 2.0e4, "nu": 0.3}
     vol = np.full(P, 2e-5) if vol is None else vol
-    return Model.from_particles(vol, {"class": cls, "density": 500.0, **mat}, (0, 0, 0), DX, DIMS,
-                                gravity=grav, requires_grad=requires_grad)
+    return Model.from_particles(
+        vol,
+        {"class": cls, "density": 500.0, **mat},
+        (0, 0, 0),
+        DX,
+        DIMS,
+        gravity=grav,
+        requires_grad=requires_grad,
+    )
 
 
 @pytest.mark.parametrize("threads", [1, 2])
@@ -129,11 +136,19 @@ def test_step_matches_float64_twin(threads):
     g = solver.grid
     (ox, oy, oz), (rx, ry, rz) = g.offset, g.mv.shape[1:]
     grid_q = g.mv.numpy().sum(axis=0)
-    np.testing.assert_allclose(grid_q[..., 3], gm[ox:ox + rx, oy:oy + ry, oz:oz + rz], rtol=1e-5, atol=1e-10)
-    np.testing.assert_allclose(gm.sum(), grid_q[..., 3].sum(), rtol=1e-6)  # no mass outside the region
+    np.testing.assert_allclose(
+        grid_q[..., 3], gm[ox : ox + rx, oy : oy + ry, oz : oz + rz], rtol=1e-5, atol=1e-10
+    )
+    np.testing.assert_allclose(
+        gm.sum(), grid_q[..., 3].sum(), rtol=1e-6
+    )  # no mass outside the region
     # node momenta are sums of terms of both signs: absolute tolerance 1e-4 of the largest
-    np.testing.assert_allclose(grid_q[..., :3], gmv[ox:ox + rx, oy:oy + ry, oz:oz + rz], rtol=1e-4,
-                               atol=1e-4 * np.abs(gmv).max())
+    np.testing.assert_allclose(
+        grid_q[..., :3],
+        gmv[ox : ox + rx, oy : oy + ry, oz : oz + rz],
+        rtol=1e-4,
+        atol=1e-4 * np.abs(gmv).max(),
+    )
 
 
 def test_transfers_conserve_mass_and_momentum():
@@ -169,21 +184,46 @@ def _eval_constitutive(cls, F, C, ep, dt, requires_grad=False, **params):
     m C - dt V 4/dx^2 tau is exactly C - tau (m = 1).
     """
     P = F.shape[0]
-    m = Model.from_particles(np.full(P, 1.0 / (4.0 * dt)), {"class": cls, "density": 4.0 * dt, **params},
-                             (0, 0, 0), DX, DIMS, requires_grad=requires_grad)
+    m = Model.from_particles(
+        np.full(P, 1.0 / (4.0 * dt)),
+        {"class": cls, "density": 4.0 * dt, **params},
+        (0, 0, 0),
+        DX,
+        DIMS,
+        requires_grad=requires_grad,
+    )
     arrs = {
         "F": wp.array(F.astype(np.float32), dtype=wp.mat33, requires_grad=requires_grad),
         "C": wp.array(C.astype(np.float32), dtype=wp.mat33, requires_grad=requires_grad),
         "ep": wp.array(ep.astype(np.float32), dtype=float, requires_grad=requires_grad),
     }
-    out = (wp.zeros(P, dtype=wp.mat33, requires_grad=requires_grad),
-           wp.zeros(P, dtype=float, requires_grad=requires_grad),
-           wp.zeros(P, dtype=wp.mat33, requires_grad=requires_grad))
+    out = (
+        wp.zeros(P, dtype=wp.mat33, requires_grad=requires_grad),
+        wp.zeros(P, dtype=float, requires_grad=requires_grad),
+        wp.zeros(P, dtype=wp.mat33, requires_grad=requires_grad),
+    )
     pr = m.params
     active = wp.ones(P, dtype=float)
-    inputs = [arrs["C"], arrs["F"], arrs["ep"], active, m.volume, pr["density"], m.material_class,
-              pr["E"], pr["nu"], pr["tau_Y"], pr["eta"], pr["theta_fric"], pr["mu"], pr["kappa"], pr["n"],
-              1.0, float(dt), 0]
+    inputs = [
+        arrs["C"],
+        arrs["F"],
+        arrs["ep"],
+        active,
+        m.volume,
+        pr["density"],
+        m.material_class,
+        pr["E"],
+        pr["nu"],
+        pr["tau_Y"],
+        pr["eta"],
+        pr["theta_fric"],
+        pr["mu"],
+        pr["kappa"],
+        pr["n"],
+        1.0,
+        float(dt),
+        0,
+    ]
     kernel = K.STRESS_KERNELS[MATERIAL_CLASSES.index(cls)]
     return m, arrs, out, inputs, kernel
 
@@ -266,8 +306,13 @@ def test_foam_viscoplastic_matches_paper_formula():
 def test_foam_default_yield_stress():
     rng = np.random.default_rng(5)
     F = _big_strain(rng, 4)
-    m = Model.from_particles(np.ones(4), {"class": "foam", "density": 1.0, "E": 1e4, "nu": 0.3, "eta": 1.0},
-                             (0, 0, 0), DX, DIMS)
+    m = Model.from_particles(
+        np.ones(4),
+        {"class": "foam", "density": 1.0, "E": 1e4, "nu": 0.3, "eta": 1.0},
+        (0, 0, 0),
+        DX,
+        DIMS,
+    )
     np.testing.assert_allclose(m.params["tau_Y"].numpy(), 0.05 * 1e4)
     del F
 
@@ -303,7 +348,9 @@ def test_newtonian_fluid_resets_F_and_stress():
     Fe, _, tau = _run_constitutive("newtonian", F, C=C, dt=dt, mu=mu, kappa=kappa)
     J = np.linalg.det((np.eye(3) + dt * C) @ F)  # the kernel updates F with C first
     np.testing.assert_allclose(Fe, np.cbrt(J)[:, None, None] * np.eye(3), rtol=1e-5, atol=1e-6)
-    ref = (J * mu)[:, None, None] * (C + C.transpose(0, 2, 1)) + (0.5 * kappa * (J**2 - 1))[:, None, None] * np.eye(3)
+    ref = (J * mu)[:, None, None] * (C + C.transpose(0, 2, 1)) + (0.5 * kappa * (J**2 - 1))[
+        :, None, None
+    ] * np.eye(3)
     np.testing.assert_allclose(tau, ref, rtol=1e-4, atol=1e-2)
 
 
@@ -313,7 +360,9 @@ def test_herschel_bulkley_solves_flow_rule(n):
     P = 12
     F = _big_strain(rng, P)
     mu, kappa, tau_Y, eta, dt = 1e3, 5e3, 20.0, 2.0, 1e-3
-    Fe, ep, _ = _run_constitutive("non_newtonian", F, dt=dt, mu=mu, kappa=kappa, tau_Y=tau_Y, eta=eta, n=n)
+    Fe, ep, _ = _run_constitutive(
+        "non_newtonian", F, dt=dt, mu=mu, kappa=kappa, tau_Y=tau_Y, eta=eta, n=n
+    )
     d0, _ = _dev_norm_log(F)
     x = ep  # dgamma per particle (ep0 = 0)
     yielded = 2 * mu * d0 > np.sqrt(2 / 3) * tau_Y
@@ -358,7 +407,9 @@ def _fd_check(run, arrays, h_rel=1e-2, rtol=3e-2, n_probe=2, seed=0):
             arr.assign(base)
             fd = (vals[0] - vals[1]) / (2 * h)
             scale = max(np.abs(g).max(), 1e-12)
-            assert abs(g[i] - fd) <= rtol * scale, f"{name}[{i}]: tape {g[i]:.6g} vs FD {fd:.6g} (scale {scale:.3g})"
+            assert abs(g[i] - fd) <= rtol * scale, (
+                f"{name}[{i}]: tape {g[i]:.6g} vs FD {fd:.6g} (scale {scale:.3g})"
+            )
 
 
 @pytest.mark.parametrize("cls", MATERIAL_CLASSES)
@@ -379,7 +430,9 @@ def test_constitutive_adjoint(cls):
         F *= 0.9  # compressed: inside the cone's smooth part
     C = rng.normal(0, 1.0, (P, 3, 3))
     ep = np.full(P, 0.05)
-    m, arrs, out, inputs, kernel = _eval_constitutive(cls, F, C, ep, 1e-3, requires_grad=True, **params)
+    m, arrs, out, inputs, kernel = _eval_constitutive(
+        cls, F, C, ep, 1e-3, requires_grad=True, **params
+    )
     wF = rng.normal(size=(P, 3, 3))
     wt = rng.normal(size=(P, 3, 3)) / max(params.get("E", params.get("kappa")), 1.0)
     we = rng.normal(size=P)
@@ -389,7 +442,11 @@ def test_constitutive_adjoint(cls):
             o.zero_()
         if tape is None:
             wp.launch(kernel, dim=P, inputs=inputs, outputs=list(out))
-            return float((out[0].numpy() * wF).sum() + (out[2].numpy() * wt).sum() + (out[1].numpy() * we).sum())
+            return float(
+                (out[0].numpy() * wF).sum()
+                + (out[2].numpy() * wt).sum()
+                + (out[1].numpy() * we).sum()
+            )
         with tape:
             wp.launch(kernel, dim=P, inputs=inputs, outputs=list(out))
         out[0].grad.assign(wF.astype(np.float32))
@@ -424,8 +481,12 @@ def test_transfer_kernels_adjoint():
         if tape is None:
             solver.step(s_in, s_out, dt, grid=grid)
             o = s_out.numpy()
-            return float((o["x"] * wx).sum() + (o["v"] * wv).sum() + (o["C"] * wC).sum() * 1e-2
-                         + (o["F"] * wF).sum())
+            return float(
+                (o["x"] * wx).sum()
+                + (o["v"] * wv).sum()
+                + (o["C"] * wC).sum() * 1e-2
+                + (o["F"] * wF).sum()
+            )
         with tape:
             solver.step(s_in, s_out, dt, grid=grid)
         s_out.x.grad.assign(wx.astype(np.float32))
@@ -439,5 +500,16 @@ def test_transfer_kernels_adjoint():
         tape.zero()
         return res
 
-    _fd_check(run, {"x": s_in.x, "v": s_in.v, "C": s_in.C, "F": s_in.F, "E": m.params["E"],
-                    "density": m.params["density"]}, h_rel=1e-3, n_probe=3)
+    _fd_check(
+        run,
+        {
+            "x": s_in.x,
+            "v": s_in.v,
+            "C": s_in.C,
+            "F": s_in.F,
+            "E": m.params["E"],
+            "density": m.params["density"],
+        },
+        h_rel=1e-3,
+        n_probe=3,
+    )

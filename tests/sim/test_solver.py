@@ -69,8 +69,13 @@ def test_auto_substeps_from_cfl_and_viscosity():
     dt_visc = 0.5 * 1000.0 * DX**2 / (6 * 50.0)
     assert stable_dt(fluid, DX) == pytest.approx(dt_visc, rel=1e-6)
     # per-particle values: the stiffest particle decides
-    mixed = {"class": np.array([0, 0, 2]), "density": 200.0, "E": np.array([1e3, 2e4, 8e4]), "nu": 0.3,
-             "tau_Y": 10.0}
+    mixed = {
+        "class": np.array([0, 0, 2]),
+        "density": 200.0,
+        "E": np.array([1e3, 2e4, 8e4]),
+        "nu": 0.3,
+        "tau_Y": 10.0,
+    }
     assert stable_dt(mixed, DX) == pytest.approx(stable_dt({**ELASTIC, "E": 8e4}, DX), rel=1e-6)
     sim = build_simulation(_scene(), _cfg(), ELASTIC)
     assert sim.substeps == auto_substeps(ELASTIC, DX, 0.02)
@@ -91,7 +96,10 @@ def test_divergence_raises_simulation_error_with_frame_and_cfl():
         ({"class": "glass", "density": 1.0, "E": 1.0, "nu": 0.3}, "material.class"),
         ({"class": "elastic", "density": 1.0, "E": 1.0, "nu": 0.5}, "material.nu"),
         ({"class": "elastic", "density": 1.0, "E": np.ones(3), "nu": 0.3}, "material.E"),
-        ({"class": "sand", "density": 1.0, "E": 1.0, "nu": 0.3, "theta_fric": 95.0}, "material.theta_fric"),
+        (
+            {"class": "sand", "density": 1.0, "E": 1.0, "nu": 0.3, "theta_fric": 95.0},
+            "material.theta_fric",
+        ),
         ({"class": "elastic", "density": -1.0, "E": 1.0, "nu": 0.3}, "material.density"),
         ({"class": "elastic", "density": 1.0, "E": 1.0, "nu": 0.3, "zeta": 1.0}, "material"),
     ],
@@ -108,11 +116,28 @@ def test_mixed_materials_in_one_scene():
     scene = _scene(n_side=6, centre=(0.5, 0.5, 0.3))
     x = scene.particles.numpy()
     fluid = x[:, 0] > 0.5
-    mat = {"class": np.where(fluid, 5, 2), "density": 500.0, "E": 5.0e4, "nu": 0.3, "tau_Y": 2e3,
-           "mu": 0.1, "kappa": 5.0e4}
-    cfg = config_from_dict({"sim": {"grid": 16, "frames": 12, "frame_dt": 0.02, "substeps": "auto"},
-                            "boundary_conditions": [{"type": "surface_collider", "point": [0, 0, 0.2],
-                                                     "normal": [0, 0, 1], "mode": "slip"}]})
+    mat = {
+        "class": np.where(fluid, 5, 2),
+        "density": 500.0,
+        "E": 5.0e4,
+        "nu": 0.3,
+        "tau_Y": 2e3,
+        "mu": 0.1,
+        "kappa": 5.0e4,
+    }
+    cfg = config_from_dict(
+        {
+            "sim": {"grid": 16, "frames": 12, "frame_dt": 0.02, "substeps": "auto"},
+            "boundary_conditions": [
+                {
+                    "type": "surface_collider",
+                    "point": [0, 0, 0.2],
+                    "normal": [0, 0, 1],
+                    "mode": "slip",
+                }
+            ],
+        }
+    )
     sim = build_simulation(scene, cfg, mat)
     xs, Fs = sim.run()
     top0 = x[:, 2].max()
@@ -126,10 +151,25 @@ def test_mixed_materials_in_one_scene():
 
 def test_ball_bounces_on_surface_collider():
     scene = _scene(n_side=5, centre=(0.5, 0.5, 0.35))
-    cfg = config_from_dict({"sim": {"grid": 16, "frames": 16, "frame_dt": 0.02, "substeps": "auto",
-                                    "initial_velocity": [0, 0, -2.0]},
-                            "boundary_conditions": [{"type": "surface_collider", "point": [0, 0, 0.2],
-                                                     "normal": [0, 0, 1], "mode": "slip"}]})
+    cfg = config_from_dict(
+        {
+            "sim": {
+                "grid": 16,
+                "frames": 16,
+                "frame_dt": 0.02,
+                "substeps": "auto",
+                "initial_velocity": [0, 0, -2.0],
+            },
+            "boundary_conditions": [
+                {
+                    "type": "surface_collider",
+                    "point": [0, 0, 0.2],
+                    "normal": [0, 0, 1],
+                    "mode": "slip",
+                }
+            ],
+        }
+    )
     sim = build_simulation(scene, cfg, {**ELASTIC, "E": 1.0e5})
     xs, _, vs = sim.run(return_velocities=True)
     zmin = xs[:, :, 2].min(axis=1)
@@ -139,10 +179,16 @@ def test_ball_bounces_on_surface_collider():
 
 
 def test_bridge_returns_requested_frames():
-    sim = build_simulation(_scene(), _cfg(frames=5, initial_velocity=(0, 1.0, 0)), ELASTIC, requires_grad=True)
+    sim = build_simulation(
+        _scene(), _cfg(frames=5, initial_velocity=(0, 1.0, 0)), ELASTIC, requires_grad=True
+    )
     xs_all, Fs_all = sim.run()
     xs, Fs = simulate(sim, frames=[4, 1, 2])
-    assert xs.shape == (3, sim.model.particle_count, 3) and Fs.shape[1:] == (sim.model.particle_count, 3, 3)
+    assert xs.shape == (3, sim.model.particle_count, 3) and Fs.shape[1:] == (
+        sim.model.particle_count,
+        3,
+        3,
+    )
     np.testing.assert_allclose(xs.numpy(), xs_all[[4, 1, 2]])
     np.testing.assert_allclose(Fs.numpy(), Fs_all[[4, 1, 2]])
     with pytest.raises(ValueError):
@@ -151,9 +197,24 @@ def test_bridge_returns_requested_frames():
 
 def test_force_magnitude_gradient_matches_finite_differences():
     scene = _scene(n_side=4)
-    cfg = config_from_dict({"sim": {"grid": 16, "frames": 3, "frame_dt": 0.01, "substeps": 10, "gravity": [0, 0, 0]},
-                            "forces": [{"type": "add_constant_force", "force": [1.0, 0.0, 2.0],
-                                        "box": [[0.4, 0.4, 0.2], [0.52, 0.6, 0.4]]}]})
+    cfg = config_from_dict(
+        {
+            "sim": {
+                "grid": 16,
+                "frames": 3,
+                "frame_dt": 0.01,
+                "substeps": 10,
+                "gravity": [0, 0, 0],
+            },
+            "forces": [
+                {
+                    "type": "add_constant_force",
+                    "force": [1.0, 0.0, 2.0],
+                    "box": [[0.4, 0.4, 0.2], [0.52, 0.6, 0.4]],
+                }
+            ],
+        }
+    )
     sim = build_simulation(scene, cfg, ELASTIC, requires_grad=True)
     name = sim.model.boundary.params[0].name
     rng = np.random.default_rng(0)
@@ -177,7 +238,9 @@ def test_force_magnitude_gradient_matches_finite_differences():
 
 
 @pytest.mark.cuda
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device (torch.cuda.is_available() is False)")
+@pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="needs a CUDA device (torch.cuda.is_available() is False)"
+)
 def test_cuda_matches_cpu():
     scene = _scene()
     cfg = _cfg(frames=4, initial_velocity=(0.5, 0.0, -1.0))
@@ -190,8 +253,9 @@ def test_cuda_matches_cpu():
 
 def test_bridge_backward_after_an_interleaved_run():
     """A forward-only run between simulate() and backward() must not corrupt the gradient."""
-    sim = build_simulation(_scene(n_side=3), _cfg(frames=3, initial_velocity=(0, 0, -2.0)), ELASTIC,
-                           requires_grad=True)
+    sim = build_simulation(
+        _scene(n_side=3), _cfg(frames=3, initial_velocity=(0, 0, -2.0)), ELASTIC, requires_grad=True
+    )
     E = torch.tensor(2.0e4, requires_grad=True)
     xs, _ = simulate(sim, {"E": E}, frames=[2])
     (xs[..., 2] * torch.linspace(0, 1, xs.shape[1])).sum().backward()

@@ -40,19 +40,31 @@ def _main(args) -> int:
     if not args.quiet:
         print(f"demo config: {path} (copy and edit it, then: motionphysics run YOUR.yaml)")
     with Progress(quiet=args.quiet, verbose=args.verbose) as prog:
-        result = run_pipeline(cfg, out, init_backend="kb", optimise=True,
-                              force=args.force or _previous_demo(out), progress=prog,
-                              config_origin=str(path), command="demo")
+        result = run_pipeline(
+            cfg,
+            out,
+            init_backend="kb",
+            optimise=True,
+            force=args.force or _previous_demo(out),
+            progress=prog,
+            config_origin=str(path),
+            command="demo",
+        )
     if not args.quiet:
         print_summary(result)
     return 0
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("demo", help="main job on a bundled scene (elastic bird dropped on the ground)",
-                              description=__doc__.split("\n\n")[0])
+    p = subparsers.add_parser(
+        "demo",
+        help="main job on a bundled scene (elastic bird dropped on the ground)",
+        description=__doc__.split("\n\n")[0],
+    )
     p.add_argument("--out", metavar="DIR", help="run directory (default: runs/demo)")
     p.add_argument("--device", choices=["cpu", "cuda"], help="where to simulate and render")
-    p.add_argument("--force", action="store_true", help="overwrite a (non-demo) run already in --out")
+    p.add_argument(
+        "--force", action="store_true", help="overwrite a (non-demo) run already in --out"
+    )
     add_display_options(p)
     p.set_defaults(func=_main)

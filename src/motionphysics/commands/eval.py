@@ -17,8 +17,10 @@ def _main(args) -> int:
     if not args.quiet:
         print(f"metrics:   {rd.path / 'metrics.json'}")
         print(f"frames {m['frames']}, particles {m['particles']}, duration {m['duration_s']:.3g} s")
-        print(f"final height / initial {m['final_height_ratio']:.3f}; spread ratio {m['spread_ratio']:.3f}; "
-              f"max displacement {m['max_displacement']:.3g} m; max speed {m['max_speed']:.3g} m/s")
+        print(
+            f"final height / initial {m['final_height_ratio']:.3f}; spread ratio {m['spread_ratio']:.3f}; "
+            f"max displacement {m['max_displacement']:.3g} m; max speed {m['max_speed']:.3g} m/s"
+        )
         if "volume_ratio" in m:
             vr = m["volume_ratio"]
             print(f"volume ratio det F in [{vr['overall_min']:.3f}, {vr['overall_max']:.3f}]")
@@ -28,8 +30,9 @@ def _main(args) -> int:
 def register(subparsers) -> None:
     from motionphysics.commands.run import add_display_options
 
-    p = subparsers.add_parser("eval", help="write metrics.json for a run directory",
-                              description=__doc__.split("\n\n")[0])
+    p = subparsers.add_parser(
+        "eval", help="write metrics.json for a run directory", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("run_dir", metavar="RUN_DIR", help="a run directory (holds trajectory.npz)")
     add_display_options(p)
     p.set_defaults(func=_main)

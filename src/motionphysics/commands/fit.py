@@ -35,8 +35,16 @@ import numpy as np
 
 from motionphysics.errors import SimulationError, UserInputError
 
-__all__ = ["Reference", "FitSetup", "SimParts", "load_reference", "prepare_simulation", "build_fit",
-           "run_fit", "register"]
+__all__ = [
+    "Reference",
+    "FitSetup",
+    "SimParts",
+    "load_reference",
+    "prepare_simulation",
+    "build_fit",
+    "run_fit",
+    "register",
+]
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -74,7 +82,9 @@ def load_reference(path: str | Path) -> Reference:
 
         return Reference("video", np.asarray(read_video(p)), str(p), _digest(p))
     if suffix != ".npz":
-        raise UserInputError(f"{p}: unsupported reference type {suffix!r}; expected .mp4, .gif or .npz")
+        raise UserInputError(
+            f"{p}: unsupported reference type {suffix!r}; expected .mp4, .gif or .npz"
+        )
     try:
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
@@ -83,7 +93,9 @@ def load_reference(path: str | Path) -> Reference:
     if "frames" in arrays:
         frames = arrays["frames"]
         if frames.ndim != 4 or frames.shape[-1] != 3:
-            raise UserInputError(f"{p}: 'frames' must be [frames, height, width, 3], got {frames.shape}")
+            raise UserInputError(
+                f"{p}: 'frames' must be [frames, height, width, 3], got {frames.shape}"
+            )
         if frames.dtype != np.uint8:
             frames = frames.astype(np.float32)
             if frames.size and (frames.min() < 0 or frames.max() > 1):
@@ -112,23 +124,38 @@ class BridgeSimulator:
         from motionphysics.sim.model import PARAM_NAMES
 
         params = {k: v for k, v in sim_params.items() if k in PARAM_NAMES}
-        return simulate(self.simulation, params, frames=frames, initial_velocity=initial_velocity,
-                        grad_mode=grad_mode, window=window)
+        return simulate(
+            self.simulation,
+            params,
+            frames=frames,
+            initial_velocity=initial_velocity,
+            grad_mode=grad_mode,
+            window=window,
+        )
 
 
 class SplatRenderer:
     """Differentiable frames of the run camera (splats follow the particles, plus the ground)."""
 
     def __init__(self, sim_scene, camera, background, ground):
-        self.sim_scene, self.camera, self.background, self.ground = sim_scene, camera, background, ground
+        self.sim_scene, self.camera, self.background, self.ground = (
+            sim_scene,
+            camera,
+            background,
+            ground,
+        )
 
     def __call__(self, xs, Fs):
         import torch
 
         from motionphysics.pipeline import render_view
 
-        return torch.stack([render_view(self.sim_scene, xs[i], Fs[i], self.camera, self.background,
-                                        self.ground) for i in range(xs.shape[0])])
+        return torch.stack(
+            [
+                render_view(self.sim_scene, xs[i], Fs[i], self.camera, self.background, self.ground)
+                for i in range(xs.shape[0])
+            ]
+        )
 
 
 @dataclass
@@ -165,8 +192,10 @@ def _optimised_names(cfg, cls: str) -> list[str]:
         )
     bad = [n for n in cfg.optimize.per_particle if n not in names]
     if bad:
-        raise UserInputError(f"optimize.per_particle: {', '.join(bad)} not among the optimised "
-                             f"parameters ({', '.join(names)})")
+        raise UserInputError(
+            f"optimize.per_particle: {', '.join(bad)} not among the optimised "
+            f"parameters ({', '.join(names)})"
+        )
     return names
 
 
@@ -186,22 +215,40 @@ def _fix_substeps(cfg, material, names, sim_scene) -> tuple[Any, Any]:
     length = float(np.max(particles.max(0) - particles.min(0)))
     gravity = float(np.linalg.norm(np.asarray(cfg.sim.gravity, dtype=np.float64)))
     frame_dt = float(cfg.sim.frame_dt)
-    values = {"density": float(material.density), **{k: float(v) for k, v in material.values.items()}}
+    values = {
+        "density": float(material.density),
+        **{k: float(v) for k, v in material.values.items()},
+    }
     if cfg.sim.substeps != "auto":
         n = int(cfg.sim.substeps)
-        ctx = SimContext(dx=float(sim_scene.dx), dt=frame_dt / n, density=values["density"],
-                         length=length, gravity=gravity)
+        ctx = SimContext(
+            dx=float(sim_scene.dx),
+            dt=frame_dt / n,
+            density=values["density"],
+            length=length,
+            gravity=gravity,
+        )
         return cfg, ctx
     from motionphysics.sim.solver import auto_substeps
 
-    ctx = SimContext(dx=float(sim_scene.dx), dt=frame_dt / 512, density=values["density"],
-                     length=length, gravity=gravity)
+    ctx = SimContext(
+        dx=float(sim_scene.dx),
+        dt=frame_dt / 512,
+        density=values["density"],
+        length=length,
+        gravity=gravity,
+    )
     stiff = dict(values)
     for n in names:
         stiff[n] = float(spec(material.cls, n).high) if n != "density" else values["density"]
     sim = physical_to_sim(stiff, ctx, cls=material.cls)
-    n = int(auto_substeps({"class": material.cls, **{k: float(v) for k, v in sim.items()}},
-                          float(sim_scene.dx), frame_dt))
+    n = int(
+        auto_substeps(
+            {"class": material.cls, **{k: float(v) for k, v in sim.items()}},
+            float(sim_scene.dx),
+            frame_dt,
+        )
+    )
     new_sim = cfg.sim.model_copy(update={"substeps": n})
     return cfg.model_copy(update={"sim": new_sim}), ctx
 
@@ -244,14 +291,20 @@ def prepare_simulation(cfg, device: str = "cpu", requires_grad: bool = True) -> 
     material = resolve_material(cfg, None)["material"]
     names = _optimised_names(cfg, material.cls)
     cfg, ctx = _fix_substeps(cfg, material, names, sim_scene)
-    start = {"density": float(material.density), **{k: float(v) for k, v in material.values.items()}}
+    start = {
+        "density": float(material.density),
+        **{k: float(v) for k, v in material.values.items()},
+    }
     sim_values = physical_to_sim(start, ctx, cls=material.cls)
-    simulation = build_simulation(sim_scene, cfg, {"class": material.cls, **sim_values}, device,
-                                  requires_grad=requires_grad)
+    simulation = build_simulation(
+        sim_scene, cfg, {"class": material.cls, **sim_values}, device, requires_grad=requires_grad
+    )
     return SimParts(cfg, sim_scene, material, names, ctx, simulation, camera, background, ground)
 
 
-def build_fit(cfg, reference: Reference, device: str = "cpu", config_origin: str = "config") -> FitSetup:
+def build_fit(
+    cfg, reference: Reference, device: str = "cpu", config_origin: str = "config"
+) -> FitSetup:
     """Prepare the scene, the starting material, the simulation, the renderer and the loss."""
     from motionphysics.losses import get_loss
     from motionphysics.materials.catalog import spec
@@ -266,20 +319,30 @@ def build_fit(cfg, reference: Reference, device: str = "cpu", config_origin: str
             f"{reference.path} is a {reference.kind}, which fit matches with {loss_name!r}"
         )
     if cfg.sim.frames < 2:
-        raise UserInputError(f"{config_origin}: sim.frames must be >= 2 to fit (frame 0 is the initial state)")
+        raise UserInputError(
+            f"{config_origin}: sim.frames must be >= 2 to fit (frame 0 is the initial state)"
+        )
     parts = prepare_simulation(cfg, device, requires_grad=True)
     cfg, material, names, ctx = parts.cfg, parts.material, parts.names, parts.sim_context
-    start = {"density": float(material.density), **{k: float(v) for k, v in material.values.items()}}
+    start = {
+        "density": float(material.density),
+        **{k: float(v) for k, v in material.values.items()},
+    }
 
     num_frames = int(cfg.sim.frames)
     if reference.kind == "video":
-        loss = get_loss("video_match")(reference.data, mask=reference.mask,
-                                       ssim_weight=cfg.optimize.ssim_weight, source=reference.path)
+        loss = get_loss("video_match")(
+            reference.data,
+            mask=reference.mask,
+            ssim_weight=cfg.optimize.ssim_weight,
+            source=reference.path,
+        )
         loss.check(num_frames, int(cfg.camera.height), int(cfg.camera.width), config_origin)
         renderer = SplatRenderer(parts.sim_scene, parts.camera, parts.background, parts.ground)
     else:
-        loss = get_loss("trajectory_match")(reference.data, metric=cfg.optimize.trajectory_metric,
-                                            source=reference.path)
+        loss = get_loss("trajectory_match")(
+            reference.data, metric=cfg.optimize.trajectory_metric, source=reference.path
+        )
         loss.check(num_frames, int(parts.sim_scene.particles.shape[0]), config_origin)
         renderer = None
 
@@ -300,8 +363,19 @@ def build_fit(cfg, reference: Reference, device: str = "cpu", config_origin: str
         per_particle=tuple(cfg.optimize.per_particle),
         initial_velocity=tuple(cfg.sim.initial_velocity) if cfg.optimize.initial_velocity else None,
     )
-    return FitSetup(cfg, parts.sim_scene, material, names, ctx, parts.simulation, problem,
-                    parts.camera, parts.background, parts.ground, reference)
+    return FitSetup(
+        cfg,
+        parts.sim_scene,
+        material,
+        names,
+        ctx,
+        parts.simulation,
+        problem,
+        parts.camera,
+        parts.background,
+        parts.ground,
+        reference,
+    )
 
 
 def _fingerprint(setup: FitSetup) -> str:
@@ -343,9 +417,17 @@ def _plot_records(history: list[dict], names: list[str]) -> list[dict]:
     return out
 
 
-def run_fit(cfg, reference_path: str | Path, out: str | Path, *, resume: bool = False,
-            force: bool = False, iterations: int | None = None, progress=None,
-            config_origin: str = "config") -> dict[str, Any]:
+def run_fit(
+    cfg,
+    reference_path: str | Path,
+    out: str | Path,
+    *,
+    resume: bool = False,
+    force: bool = False,
+    iterations: int | None = None,
+    progress=None,
+    config_origin: str = "config",
+) -> dict[str, Any]:
     """Fit ``cfg``'s material to the reference and write the run directory at ``out``.
 
     Returns the ``params.json`` content. Raises UserInputError (bad input) and
@@ -386,14 +468,21 @@ def run_fit(cfg, reference_path: str | Path, out: str | Path, *, resume: bool = 
         "status": "running",
         "class": material.cls,
         "density": float(material.density),
-        "reference": {"path": str(reference.path), "kind": reference.kind,
-                      "sha256": reference.digest},
-        "fit": {"optimised": setup.names, "loss": setup.problem.loss.name,
-                "space": "physical theta through materials.simmap (sim values are what the motion "
-                         "determines)",
-                "grad_mode": cfg.optimize.grad_mode, "boost": cfg.optimize.boost,
-                "iterations": total,
-                "start": {k: float(v) for k, v in material.values.items()}},
+        "reference": {
+            "path": str(reference.path),
+            "kind": reference.kind,
+            "sha256": reference.digest,
+        },
+        "fit": {
+            "optimised": setup.names,
+            "loss": setup.problem.loss.name,
+            "space": "physical theta through materials.simmap (sim values are what the motion "
+            "determines)",
+            "grad_mode": cfg.optimize.grad_mode,
+            "boost": cfg.optimize.boost,
+            "iterations": total,
+            "start": {k: float(v) for k, v in material.values.items()},
+        },
         "seed": int(cfg.optimize.seed),
         "device": device,
         "versions": versions(),
@@ -406,23 +495,38 @@ def run_fit(cfg, reference_path: str | Path, out: str | Path, *, resume: bool = 
     with progress.stage("optimise", total=total) as st:
         if resume:
             st.advance(len(rd.read_jsonl("log.jsonl")))
-        result = optimize(setup.problem, cfg.optimize, rd.path, iterations=total, resume=resume,
-                          fingerprint=_fingerprint(setup), progress=lambda rec: st.advance())
+        result = optimize(
+            setup.problem,
+            cfg.optimize,
+            rd.path,
+            iterations=total,
+            resume=resume,
+            fingerprint=_fingerprint(setup),
+            progress=lambda rec: st.advance(),
+        )
 
     phys, sim_values = _final_values(setup, result.theta)
     final_cfg = cfg
     if "initial_velocity" in result.theta:
         v = tuple(float(x) for x in result.theta["initial_velocity"].detach())
-        final_cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"initial_velocity": v})})
+        final_cfg = cfg.model_copy(
+            update={"sim": cfg.sim.model_copy(update={"initial_velocity": v})}
+        )
     frames = int(cfg.sim.frames)
     with progress.stage("simulate", total=frames) as st:
-        xs, Fs, vs, _ = _simulate(setup.sim_scene, final_cfg, material, sim_values, device, frames, st)
+        xs, Fs, vs, _ = _simulate(
+            setup.sim_scene, final_cfg, material, sim_values, device, frames, st
+        )
     with progress.stage("render", total=frames) as st:
-        video = _render_video(rd, setup.sim_scene, xs, Fs, setup.camera, setup.background,
-                              setup.ground, final_cfg, st)
+        video = _render_video(
+            rd, setup.sim_scene, xs, Fs, setup.camera, setup.background, setup.ground, final_cfg, st
+        )
     with progress.stage("write outputs"):
-        final_material = type(material)(material.cls, phys.get("density", material.density),
-                                        {k: v for k, v in phys.items() if k != "density"})
+        final_material = type(material)(
+            material.cls,
+            phys.get("density", material.density),
+            {k: v for k, v in phys.items() if k != "density"},
+        )
         traj = _write_trajectory(rd, setup.sim_scene, xs, Fs, vs, final_cfg, final_material)
         metrics = write_metrics(rd, traj)
         records = _plot_records(result.history, setup.names)
@@ -438,33 +542,53 @@ def run_fit(cfg, reference_path: str | Path, out: str | Path, *, resume: bool = 
             plots.append("plots/params.png")
         except ValueError:
             pass
-        space_time_slice(video, rd.file("plots/slice.png"), frame_dt=cfg.sim.frame_dt,
-                         title="space-time slice of the fitted simulation")
+        space_time_slice(
+            video,
+            rd.file("plots/slice.png"),
+            frame_dt=cfg.sim.frame_dt,
+            title="space-time slice of the fitted simulation",
+        )
         plots.append("plots/slice.png")
 
     def jsonable(v):
-        return v if isinstance(v, float) else {"mean": float(np.mean(v)), "min": float(np.min(v)),
-                                              "max": float(np.max(v))}
+        return (
+            v
+            if isinstance(v, float)
+            else {"mean": float(np.mean(v)), "min": float(np.min(v)), "max": float(np.max(v))}
+        )
 
-    state.update({
-        "partial": False,
-        "status": "complete" if result.stop_reason != "nan" else "stopped_nan",
-        "params": {k: jsonable(v) for k, v in phys.items() if k != "density"},
-        "sim": {k: jsonable(v) for k, v in sim_values.items()},
-        "units": {k: UNITS.get(k, "") for k in phys},
-        "sim_context": {"dx": setup.sim_context.dx, "dt_map": setup.sim_context.dt,
-                        "substeps": int(cfg.sim.substeps), "frame_dt": float(cfg.sim.frame_dt),
-                        "length": setup.sim_context.length},
-        "history": result.history,
-        "metrics": {k: metrics[k] for k in ("final_height_ratio", "spread_ratio") if k in metrics},
-        "plots": plots,
-        "wall_time_s": time.perf_counter() - t0,
-        "timings": dict(progress.timings),
-    })
+    state.update(
+        {
+            "partial": False,
+            "status": "complete" if result.stop_reason != "nan" else "stopped_nan",
+            "params": {k: jsonable(v) for k, v in phys.items() if k != "density"},
+            "sim": {k: jsonable(v) for k, v in sim_values.items()},
+            "units": {k: UNITS.get(k, "") for k in phys},
+            "sim_context": {
+                "dx": setup.sim_context.dx,
+                "dt_map": setup.sim_context.dt,
+                "substeps": int(cfg.sim.substeps),
+                "frame_dt": float(cfg.sim.frame_dt),
+                "length": setup.sim_context.length,
+            },
+            "history": result.history,
+            "metrics": {
+                k: metrics[k] for k in ("final_height_ratio", "spread_ratio") if k in metrics
+            },
+            "plots": plots,
+            "wall_time_s": time.perf_counter() - t0,
+            "timings": dict(progress.timings),
+        }
+    )
     if "initial_velocity" in result.theta:
         state["params"]["initial_velocity"] = [float(x) for x in result.theta["initial_velocity"]]
-    state["fit"].update({"stop_reason": result.stop_reason, "message": result.message,
-                         "iterations_run": result.iterations})
+    state["fit"].update(
+        {
+            "stop_reason": result.stop_reason,
+            "message": result.message,
+            "iterations_run": result.iterations,
+        }
+    )
     rd.write_json("params.json", state)
     if result.stop_reason == "nan":
         raise SimulationError(f"{result.message} Outputs in {rd.path} use those parameters.")
@@ -480,31 +604,56 @@ def _main(args) -> int:
         raise UserInputError(f"--iters: expected a count >= 0, got {args.iters}")
     cfg = load_run_config(args.config, {"device": args.device})
     out = Path(args.out) if args.out else default_out(args.config, "fit")
-    with Progress(quiet=getattr(args, "quiet", False), verbose=getattr(args, "verbose", False)) as prog:
-        state = run_fit(cfg, args.reference, out, resume=args.resume, force=args.force,
-                        iterations=args.iters, progress=prog, config_origin=args.config)
+    with Progress(
+        quiet=getattr(args, "quiet", False), verbose=getattr(args, "verbose", False)
+    ) as prog:
+        state = run_fit(
+            cfg,
+            args.reference,
+            out,
+            resume=args.resume,
+            force=args.force,
+            iterations=args.iters,
+            progress=prog,
+            config_origin=args.config,
+        )
     if not getattr(args, "quiet", False):
         fit = state["fit"]
-        print(f"fit:       {state['class']}, {fit['message']} ({fit['loss']}, "
-              f"grad_mode {fit['grad_mode']})")
+        print(
+            f"fit:       {state['class']}, {fit['message']} ({fit['loss']}, "
+            f"grad_mode {fit['grad_mode']})"
+        )
         for name in fit["optimised"]:
             v = state["params"].get(name)
             s = state["sim"].get(name)
-            print(f"  {name:<10} {json.dumps(v):>24} {state['units'].get(name, ''):<6}"
-                  f"  (simulation: {json.dumps(s)}; start {fit['start'].get(name)})")
+            print(
+                f"  {name:<10} {json.dumps(v):>24} {state['units'].get(name, ''):<6}"
+                f"  (simulation: {json.dumps(s)}; start {fit['start'].get(name)})"
+            )
         print(f"run dir:   {out}")
     return 0
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("fit", help="system identification: fit the material to a reference",
-                              description=__doc__.split("\n\n")[0])
-    p.add_argument("config", metavar="CONFIG", help="run config (YAML): scene, forces, camera, start material")
-    p.add_argument("--reference", required=True, metavar="VIDEO_OR_NPZ",
-                   help=".mp4/.gif or .npz with 'frames' (video) or 'x' (trajectory.npz of simulate)")
+    p = subparsers.add_parser(
+        "fit",
+        help="system identification: fit the material to a reference",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument(
+        "config", metavar="CONFIG", help="run config (YAML): scene, forces, camera, start material"
+    )
+    p.add_argument(
+        "--reference",
+        required=True,
+        metavar="VIDEO_OR_NPZ",
+        help=".mp4/.gif or .npz with 'frames' (video) or 'x' (trajectory.npz of simulate)",
+    )
     p.add_argument("--out", metavar="DIR", help="run directory (default: runs/<config name>)")
     p.add_argument("--resume", action="store_true", help="continue a killed fit in --out")
     p.add_argument("--force", action="store_true", help="overwrite a run already in --out")
-    p.add_argument("--iters", type=int, metavar="N", help="optimisation iterations (default: the config's)")
+    p.add_argument(
+        "--iters", type=int, metavar="N", help="optimisation iterations (default: the config's)"
+    )
     p.add_argument("--device", choices=["cpu", "cuda"], help="where to simulate and render")
     p.set_defaults(func=_main)

@@ -27,17 +27,28 @@ def register(subparsers) -> None:
         "text prompt and an optional reference image.",
     )
     p.add_argument("prompt", nargs="?", help="the simulation prompt, e.g. 'A rubber duck bounces'")
-    p.add_argument("--from", dest="from_file", metavar="FILE",
-                   help="read one prompt per line (UTF-8); print one JSON line per prompt")
+    p.add_argument(
+        "--from",
+        dest="from_file",
+        metavar="FILE",
+        help="read one prompt per line (UTF-8); print one JSON line per prompt",
+    )
     p.add_argument("--image", metavar="PNG", help="reference image (a render of the scene)")
-    p.add_argument("--backend", default="kb", choices=["kb", "llm", "median", "naive"],
-                   help="kb: offline knowledge base (default); llm: OpenAI-compatible chat "
-                   "model with ranges; median: range medians; naive: LLM without ranges")
+    p.add_argument(
+        "--backend",
+        default="kb",
+        choices=["kb", "llm", "median", "naive"],
+        help="kb: offline knowledge base (default); llm: OpenAI-compatible chat "
+        "model with ranges; median: range medians; naive: LLM without ranges",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--class", dest="cls", metavar="CLASS",
-                   help="force the class (median backend)")
-    p.add_argument("--median", choices=["arithmetic", "geometric"], default="arithmetic",
-                   help="median of log-scaled ranges (median backend; paper: arithmetic)")
+    p.add_argument("--class", dest="cls", metavar="CLASS", help="force the class (median backend)")
+    p.add_argument(
+        "--median",
+        choices=["arithmetic", "geometric"],
+        default="arithmetic",
+        help="median of log-scaled ranges (median backend; paper: arithmetic)",
+    )
     p.add_argument("--base-url", help="Chat Completions base URL (env MOTIONPHYSICS_LLM_BASE_URL)")
     p.add_argument("--model", help="model name (env MOTIONPHYSICS_LLM_MODEL; default gpt-4o)")
     p.add_argument("--timeout", type=float, default=60.0, help="seconds per LLM request")
@@ -73,13 +84,18 @@ def _table(est) -> str:
     from motionphysics.materials.catalog import MATERIALS, spec
 
     mc = MATERIALS[est.cls]
-    rows = [f"material  {mc.label} ({est.cls})", f"backend   {est.backend}"
-            + (f"   confidence {est.confidence:.2f}" if est.confidence is not None else "")]
+    rows = [
+        f"material  {mc.label} ({est.cls})",
+        f"backend   {est.backend}"
+        + (f"   confidence {est.confidence:.2f}" if est.confidence is not None else ""),
+    ]
     rows.append(f"  {'density':<10} {est.density:>12.4g} {'kg/m^3':<6}")
     for name in mc.names:
         unit = spec(est.cls, name).unit
-        rows.append(f"  {name:<10} {est.values[name]:>12.4g} {'' if unit == '1' else unit:<6}"
-                    f"   range {spec(est.cls, name).range_text()}")
+        rows.append(
+            f"  {name:<10} {est.values[name]:>12.4g} {'' if unit == '1' else unit:<6}"
+            f"   range {spec(est.cls, name).range_text()}"
+        )
     for c in est.clamped:
         rows.append(f"  clamped {c.field}: {c.original:.4g} -> {c.clamped:.4g}")
     if est.matches:
@@ -98,12 +114,14 @@ def run(args: argparse.Namespace) -> int:
         raise UserInputError("init: give either a PROMPT or --from FILE (exactly one)")
     if args.retries < 0:
         raise UserInputError("--retries: expected a count >= 0")
-    prompts = (read_prompt_file(args.from_file) if args.from_file
-               else [check_prompt(args.prompt)])
+    prompts = read_prompt_file(args.from_file) if args.from_file else [check_prompt(args.prompt)]
     options = EstimateOptions(
-        llm=LLMOptions(base_url=args.base_url, model=args.model, timeout=args.timeout,
-                       max_retries=args.retries),
-        median=args.median, cls=args.cls, announce=not args.quiet,
+        llm=LLMOptions(
+            base_url=args.base_url, model=args.model, timeout=args.timeout, max_retries=args.retries
+        ),
+        median=args.median,
+        cls=args.cls,
+        announce=not args.quiet,
     )
     estimates = estimate_many(prompts, args.image, args.backend, options)
     try:

@@ -23,22 +23,46 @@ def register(subparsers) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("scene", metavar="SCENE", help="builtin:NAME, an INRIA 3DGS .ply, or a mesh file")
-    p.add_argument("--out", required=True, help="output .png/.jpg (still) or .mp4/.gif (with --orbit)")
+    p.add_argument(
+        "scene", metavar="SCENE", help="builtin:NAME, an INRIA 3DGS .ply, or a mesh file"
+    )
+    p.add_argument(
+        "--out", required=True, help="output .png/.jpg (still) or .mp4/.gif (with --orbit)"
+    )
     p.add_argument("--orbit", action="store_true", help="render a 360-degree orbit video")
     p.add_argument("--frames", type=int, default=48, help="frames of the orbit (default 48)")
     p.add_argument("--fps", type=float, default=24.0, help="orbit video frame rate (default 24)")
-    p.add_argument("--azimuth", type=float, default=30.0, help="degrees CCW from +x about z (default 30)")
-    p.add_argument("--elevation", type=float, default=20.0, help="degrees above the horizon (default 20)")
-    p.add_argument("--radius", type=float, default=None,
-                   help="camera distance [m] (default: frame the scene's bounding box)")
+    p.add_argument(
+        "--azimuth", type=float, default=30.0, help="degrees CCW from +x about z (default 30)"
+    )
+    p.add_argument(
+        "--elevation", type=float, default=20.0, help="degrees above the horizon (default 20)"
+    )
+    p.add_argument(
+        "--radius",
+        type=float,
+        default=None,
+        help="camera distance [m] (default: frame the scene's bounding box)",
+    )
     p.add_argument("--width", type=int, default=256, help="image width [px] (default 256)")
     p.add_argument("--height", type=int, default=256, help="image height [px] (default 256)")
-    p.add_argument("--fov", type=float, default=45.0, help="vertical field of view [deg] (default 45)")
-    p.add_argument("--background", type=float, nargs=3, default=(1.0, 1.0, 1.0), metavar=("R", "G", "B"),
-                   help="background colour in [0, 1] (default white)")
-    p.add_argument("--backend", default="auto", choices=["auto", "torch", "warp", "gsplat"],
-                   help="rasteriser backend (default auto)")
+    p.add_argument(
+        "--fov", type=float, default=45.0, help="vertical field of view [deg] (default 45)"
+    )
+    p.add_argument(
+        "--background",
+        type=float,
+        nargs=3,
+        default=(1.0, 1.0, 1.0),
+        metavar=("R", "G", "B"),
+        help="background colour in [0, 1] (default white)",
+    )
+    p.add_argument(
+        "--backend",
+        default="auto",
+        choices=["auto", "torch", "warp", "gsplat"],
+        help="rasteriser backend (default auto)",
+    )
     p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     p.set_defaults(func=run)
 
@@ -50,17 +74,23 @@ def _validate(args) -> str:
     if args.orbit and suffix not in VIDEO_SUFFIXES:
         raise UserInputError(f"--out {args.out}: with --orbit expected a .mp4 or .gif file")
     if not args.orbit and suffix not in IMAGE_SUFFIXES:
-        raise UserInputError(f"--out {args.out}: expected a .png or .jpg file (or pass --orbit for video)")
+        raise UserInputError(
+            f"--out {args.out}: expected a .png or .jpg file (or pass --orbit for video)"
+        )
     if args.frames < 1:
         raise UserInputError(f"--frames: expected a positive count, got {args.frames}")
     if not (8 <= args.width <= 4096 and 8 <= args.height <= 4096):
-        raise UserInputError(f"--width/--height: expected 8..4096 pixels, got {args.width}x{args.height}")
+        raise UserInputError(
+            f"--width/--height: expected 8..4096 pixels, got {args.width}x{args.height}"
+        )
     if not 1 < args.fov < 179:
         raise UserInputError(f"--fov: expected degrees in (1, 179), got {args.fov}")
     if args.radius is not None and not args.radius > 0:
         raise UserInputError(f"--radius: expected a positive distance [m], got {args.radius}")
     if not all(0.0 <= c <= 1.0 for c in args.background):
-        raise UserInputError(f"--background: expected three numbers in [0, 1], got {list(args.background)}")
+        raise UserInputError(
+            f"--background: expected three numbers in [0, 1], got {list(args.background)}"
+        )
     if not args.fps > 0:
         raise UserInputError(f"--fps: expected a positive rate, got {args.fps}")
     return suffix
@@ -88,14 +118,18 @@ def run(args) -> int:
         raise UserInputError(f"{args.scene}: the scene has no splats")
     scene = scene.to(device)
     lo, hi = scene_bounds(scene)
-    azimuths = ([args.azimuth + 360.0 * k / args.frames for k in range(args.frames)]
-                if args.orbit else [args.azimuth])
+    azimuths = (
+        [args.azimuth + 360.0 * k / args.frames for k in range(args.frames)]
+        if args.orbit
+        else [args.azimuth]
+    )
     frames = []
     show = sys.stderr.isatty() and not getattr(args, "quiet", False) and len(azimuths) > 1
     with torch.no_grad():
         for k, az in enumerate(azimuths):
-            cam = frame_bounds(lo, hi, az, args.elevation, args.fov, args.width, args.height,
-                               radius=args.radius)
+            cam = frame_bounds(
+                lo, hi, az, args.elevation, args.fov, args.width, args.height, radius=args.radius
+            )
             out = render_scene(scene, cam, tuple(args.background), args.backend)
             frames.append(out.rgb.clamp(0, 1).cpu())
             if show:

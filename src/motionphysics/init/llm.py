@@ -67,7 +67,9 @@ class LLMOptions:
         model = self.model or env.get("MOTIONPHYSICS_LLM_MODEL") or DEFAULT_MODEL
         key = self.api_key or env.get("MOTIONPHYSICS_LLM_API_KEY") or env.get("OPENAI_API_KEY")
         if not (self.timeout > 0 and math.isfinite(self.timeout)):
-            raise UserInputError(f"--timeout: expected a positive number of seconds, got {self.timeout!r}")
+            raise UserInputError(
+                f"--timeout: expected a positive number of seconds, got {self.timeout!r}"
+            )
         if key is None:
             if base_url is None:
                 raise UserInputError(
@@ -92,17 +94,40 @@ class LLMAnswer:
 # --- parsing --------------------------------------------------------------------------
 
 _KEY_ALIASES = {
-    "material_type": "class", "material": "class", "materialtype": "class", "class": "class",
-    "type": "class", "material_class": "class",
-    "density": "density", "rho": "density",
-    "e": "E", "youngs_modulus": "E", "young_modulus": "E", "young's_modulus": "E",
-    "nu": "nu", "poisson_ratio": "nu", "poissons_ratio": "nu", "poisson's_ratio": "nu",
-    "tau_y": "tau_Y", "yield_stress": "tau_Y", "tau": "tau_Y", "sigma_y": "tau_Y",
-    "eta": "eta", "plastic_viscosity": "eta",
-    "theta_fric": "theta_fric", "friction_angle": "theta_fric", "theta": "theta_fric",
-    "mu": "mu", "viscosity": "mu",
-    "kappa": "kappa", "bulk_modulus": "kappa", "k": "kappa",
-    "n": "n", "power_index": "n", "flow_index": "n", "power_law_index": "n",
+    "material_type": "class",
+    "material": "class",
+    "materialtype": "class",
+    "class": "class",
+    "type": "class",
+    "material_class": "class",
+    "density": "density",
+    "rho": "density",
+    "e": "E",
+    "youngs_modulus": "E",
+    "young_modulus": "E",
+    "young's_modulus": "E",
+    "nu": "nu",
+    "poisson_ratio": "nu",
+    "poissons_ratio": "nu",
+    "poisson's_ratio": "nu",
+    "tau_y": "tau_Y",
+    "yield_stress": "tau_Y",
+    "tau": "tau_Y",
+    "sigma_y": "tau_Y",
+    "eta": "eta",
+    "plastic_viscosity": "eta",
+    "theta_fric": "theta_fric",
+    "friction_angle": "theta_fric",
+    "theta": "theta_fric",
+    "mu": "mu",
+    "viscosity": "mu",
+    "kappa": "kappa",
+    "bulk_modulus": "kappa",
+    "k": "kappa",
+    "n": "n",
+    "power_index": "n",
+    "flow_index": "n",
+    "power_law_index": "n",
 }
 
 _FENCE = re.compile(r"```(?:json|JSON)?\s*(.*?)```", re.S)
@@ -230,13 +255,17 @@ def make_client(opts: LLMOptions):
     import openai
 
     return openai.OpenAI(
-        base_url=opts.base_url, api_key=opts.api_key, timeout=opts.timeout,
+        base_url=opts.base_url,
+        api_key=opts.api_key,
+        timeout=opts.timeout,
         max_retries=opts.max_retries,
     )
 
 
 def ask_material(
-    prompt: str, image_png: bytes | None = None, options: LLMOptions | None = None,
+    prompt: str,
+    image_png: bytes | None = None,
+    options: LLMOptions | None = None,
     ranged: bool = True,
 ) -> LLMAnswer:
     """Ask the LLM for the material of ``prompt`` (and reference image), validated.

@@ -39,7 +39,7 @@ def _param_line(cls: str) -> str:
     for ps in mc.params:
         opt = f", optional, default {ps.default:g}" if ps.default is not None else ""
         parts.append(f"{ps.name} ({ps.description}, {_UNIT_TEXT.get(ps.unit, ps.unit)}{opt})")
-    return f"- {mc.label} (\"{cls}\"): " + ", ".join(parts)
+    return f'- {mc.label} ("{cls}"): ' + ", ".join(parts)
 
 
 def _range_lines(cls: str) -> list[str]:
@@ -52,7 +52,9 @@ def _range_lines(cls: str) -> list[str]:
 
 def _answer_format() -> str:
     keys = ["E", "nu", "tau_Y", "eta", "theta_fric", "mu", "kappa", "n"]
-    body = ",\n".join(['  "material_type": "..."', '  "density": ...'] + [f'  "{k}": ...' for k in keys])
+    body = ",\n".join(
+        ['  "material_type": "..."', '  "density": ...'] + [f'  "{k}": ...' for k in keys]
+    )
     return "{\n" + body + "\n}"
 
 
@@ -73,8 +75,11 @@ def build_prompt(text: str, ranged: bool = True, has_image: bool = False) -> str
     ]
     lines += [_param_line(cls) for cls in MATERIALS]
     if ranged:
-        lines += ["", "Warning: all inferred physical parameters must strictly fall within the "
-                      "following valid ranges (SI units):"]
+        lines += [
+            "",
+            "Warning: all inferred physical parameters must strictly fall within the "
+            "following valid ranges (SI units):",
+        ]
         for cls in MATERIALS:
             lines += _range_lines(cls)
         lines.append(f"- Density (all types): {DENSITY.range_text()}")

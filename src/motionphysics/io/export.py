@@ -52,7 +52,9 @@ def deformed_splats(splats, x, F, parent, offset):
     evals, evecs = torch.linalg.eigh(cov)  # ascending; columns are the axes
     # A proper rotation (det +1) so the quaternion exists.
     sign = torch.where(torch.linalg.det(evecs) < 0, -1.0, 1.0).to(evecs.dtype)
-    evecs = evecs * torch.stack([torch.ones_like(sign), torch.ones_like(sign), sign], -1)[:, None, :]
+    evecs = (
+        evecs * torch.stack([torch.ones_like(sign), torch.ones_like(sign), sign], -1)[:, None, :]
+    )
     floor = (1e-8 * evals.abs().amax(-1, keepdim=True)).clamp_min(1e-20)
     log_scales = 0.5 * torch.log(evals.clamp_min(0.0) + floor)
     quats = rotmat_to_quat(evecs)
@@ -66,8 +68,9 @@ def deformed_splats(splats, x, F, parent, offset):
     )
 
 
-def export_splats(sim_scene, xs, Fs, out_dir: str | Path,
-                  frames: Sequence[int] | None = None, on_frame=None) -> list[Path]:
+def export_splats(
+    sim_scene, xs, Fs, out_dir: str | Path, frames: Sequence[int] | None = None, on_frame=None
+) -> list[Path]:
     """Write ``frame_XXXX.ply`` for each frame (all by default) into ``out_dir``.
 
     ``xs`` [T, P, 3] m and ``Fs`` [T, P, 3, 3] are the simulated particle states;
@@ -81,8 +84,9 @@ def export_splats(sim_scene, xs, Fs, out_dir: str | Path,
     T = int(np.asarray(xs).shape[0]) if not hasattr(xs, "shape") else int(xs.shape[0])
     paths = []
     for i in range(T) if frames is None else frames:
-        scene = deformed_splats(sim_scene.splats, xs[i], Fs[i], sim_scene.splat_parent,
-                                sim_scene.splat_offset)
+        scene = deformed_splats(
+            sim_scene.splats, xs[i], Fs[i], sim_scene.splat_parent, sim_scene.splat_offset
+        )
         paths.append(write_ply(scene, out_dir / frame_file_name(int(i))))
         if on_frame is not None:
             on_frame()

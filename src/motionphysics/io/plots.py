@@ -84,9 +84,11 @@ def plot_loss(records: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_params(records: Sequence[Mapping[str, Any]],
-                ranges: Mapping[str, tuple[float, float]] | None,
-                path: str | Path) -> Path:
+def plot_params(
+    records: Sequence[Mapping[str, Any]],
+    ranges: Mapping[str, tuple[float, float]] | None,
+    path: str | Path,
+) -> Path:
     """One panel per parameter: its value per iteration, with its allowed range shaded.
 
     ``ranges`` maps a parameter name to its physical ``(low, high)`` (SI); the panel
@@ -98,7 +100,7 @@ def plot_params(records: Sequence[Mapping[str, Any]],
     its = _iterations(records)
     names: list[str] = []
     for r in records:
-        for k in (r.get("params") or {}):
+        for k in r.get("params") or {}:
             if k not in names:
                 names.append(k)
     if not names:
@@ -167,9 +169,14 @@ def slice_image(frames: np.ndarray, axis: str = "row", index: int | None = None)
     raise ValueError(f"axis must be 'row' or 'col', got {axis!r}")
 
 
-def space_time_slice(frames: np.ndarray, path: str | Path, axis: str = "row",
-                     index: int | None = None, frame_dt: float | None = None,
-                     title: str | None = None) -> np.ndarray:
+def space_time_slice(
+    frames: np.ndarray,
+    path: str | Path,
+    axis: str = "row",
+    index: int | None = None,
+    frame_dt: float | None = None,
+    title: str | None = None,
+) -> np.ndarray:
     """Save the space-time slice of ``frames`` (see :func:`slice_image`) as a PNG.
 
     The figure shows the first frame with the sampled line in red beside the slice
@@ -182,8 +189,7 @@ def space_time_slice(frames: np.ndarray, path: str | Path, axis: str = "row",
     first = a[0] if a.dtype == np.uint8 else np.clip(a[0], 0, 1)
     T, H, W = a.shape[0], a.shape[1], a.shape[2]
     i = (H // 2 if axis == "row" else W // 2) if index is None else int(index)
-    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(7.5, 3.6),
-                                   gridspec_kw={"width_ratios": [1, 1.3]})
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(7.5, 3.6), gridspec_kw={"width_ratios": [1, 1.3]})
     ax0.imshow(first[..., :3])
     if axis == "row":
         ax0.axhline(i, color="red", lw=1.2)
@@ -192,8 +198,7 @@ def space_time_slice(frames: np.ndarray, path: str | Path, axis: str = "row",
     ax0.set_title("frame 0", fontsize=9)
     ax0.axis("off")
     t_end = (T - 1) * frame_dt if frame_dt else T - 1
-    ax1.imshow(sl, aspect="auto", interpolation="nearest",
-               extent=(0, sl.shape[1], t_end, 0))
+    ax1.imshow(sl, aspect="auto", interpolation="nearest", extent=(0, sl.shape[1], t_end, 0))
     ax1.set_xlabel("pixel along the red line", fontsize=8)
     ax1.set_ylabel("time [s]" if frame_dt else "frame", fontsize=8)
     ax1.set_title(title or f"space-time slice ({axis} {i})", fontsize=9)
@@ -202,8 +207,13 @@ def space_time_slice(frames: np.ndarray, path: str | Path, axis: str = "row",
     return sl
 
 
-def plot_series(series: Mapping[str, Sequence[float]], t: Sequence[float], path: str | Path,
-                ylabel: str = "", title: str = "") -> Path:
+def plot_series(
+    series: Mapping[str, Sequence[float]],
+    t: Sequence[float],
+    path: str | Path,
+    ylabel: str = "",
+    title: str = "",
+) -> Path:
     """Curves over time on one axis (e.g. energies per frame). ``t`` [T] seconds."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.2))

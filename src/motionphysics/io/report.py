@@ -64,14 +64,18 @@ def _img_src(run_dir: Path, rel: str, inline: bool) -> str:
     return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
 
 
-def render_report(run_dir: str | Path, params: Mapping[str, Any], *,
-                  prompt: str,
-                  timings: Mapping[str, float] | None = None,
-                  metrics: Mapping[str, Any] | None = None,
-                  video: str | None = "video.mp4",
-                  plots: Sequence[str] = (),
-                  inline_images: bool = False,
-                  title: str = "motionphysics run") -> str:
+def render_report(
+    run_dir: str | Path,
+    params: Mapping[str, Any],
+    *,
+    prompt: str,
+    timings: Mapping[str, float] | None = None,
+    metrics: Mapping[str, Any] | None = None,
+    video: str | None = "video.mp4",
+    plots: Sequence[str] = (),
+    inline_images: bool = False,
+    title: str = "motionphysics run",
+) -> str:
     """HTML text of the report.
 
     ``params`` is the content of ``params.json``; ``plots`` are PNG paths relative to
@@ -80,25 +84,33 @@ def render_report(run_dir: str | Path, params: Mapping[str, Any], *,
     run_dir = Path(run_dir)
     e = html.escape
     out: list[str] = [
-        "<!DOCTYPE html>", "<html lang='en'><head><meta charset='utf-8'>",
+        "<!DOCTYPE html>",
+        "<html lang='en'><head><meta charset='utf-8'>",
         f"<title>{e(title)}</title><style>{_CSS}</style></head><body>",
         f"<h1>{e(title)}</h1>",
         f"<div class='prompt'>{e(prompt)}</div>",
     ]
     if params.get("partial", False):
-        out.append("<p class='partial'>This run did not finish (partial: true); "
-                   f"it stopped during “{e(str(params.get('stage', '?')))}”.</p>")
+        out.append(
+            "<p class='partial'>This run did not finish (partial: true); "
+            f"it stopped during “{e(str(params.get('stage', '?')))}”.</p>"
+        )
 
     out.append("<h2>Material</h2>")
     cls = params.get("class", "?")
     prov = params.get("provenance", {}) or {}
-    out.append(f"<p>Class <b>{e(str(cls))}</b>; estimated by <b>{e(str(prov.get('backend', '?')))}</b>"
-               + (" (class set by the config)" if prov.get("class_override") else "") + ".</p>")
+    out.append(
+        f"<p>Class <b>{e(str(cls))}</b>; estimated by <b>{e(str(prov.get('backend', '?')))}</b>"
+        + (" (class set by the config)" if prov.get("class_override") else "")
+        + ".</p>"
+    )
     phys = {"density": params.get("density"), **(params.get("params") or {})}
     sim = params.get("sim") or {}
     sources = prov.get("sources") or {}
-    out.append("<table><tr><th>parameter</th><th>physical (SI)</th><th>unit</th>"
-               "<th>simulation value</th><th>from</th></tr>")
+    out.append(
+        "<table><tr><th>parameter</th><th>physical (SI)</th><th>unit</th>"
+        "<th>simulation value</th><th>from</th></tr>"
+    )
     for name, value in phys.items():
         out.append(
             f"<tr><td>{e(name)}</td><td class='num'>{_fmt(value)}</td><td>{e(UNITS.get(name, ''))}</td>"
@@ -107,8 +119,10 @@ def render_report(run_dir: str | Path, params: Mapping[str, Any], *,
     out.append("</table>")
     clamps = prov.get("clamps") or []
     if clamps:
-        items = "; ".join(f"{e(str(c.get('field')))}: {_fmt(c.get('original'))} → {_fmt(c.get('clamped'))}"
-                          for c in clamps)
+        items = "; ".join(
+            f"{e(str(c.get('field')))}: {_fmt(c.get('original'))} → {_fmt(c.get('clamped'))}"
+            for c in clamps
+        )
         out.append(f"<p class='muted'>Clamped into the handbook range: {items}</p>")
     simctx = params.get("sim_context") or {}
     if simctx:
@@ -126,19 +140,32 @@ def render_report(run_dir: str | Path, params: Mapping[str, Any], *,
         out.append("<h2>Plots</h2><div class='plots'>")
         for rel in plots:
             if (run_dir / rel).is_file():
-                out.append(f"<figure><img src='{_img_src(run_dir, rel, inline_images)}' alt='{e(rel)}'>"
-                           f"<figcaption class='muted'>{e(rel)}</figcaption></figure>")
+                out.append(
+                    f"<figure><img src='{_img_src(run_dir, rel, inline_images)}' alt='{e(rel)}'>"
+                    f"<figcaption class='muted'>{e(rel)}</figcaption></figure>"
+                )
         out.append("</div>")
 
     if metrics:
-        keys = ["final_height_ratio", "spread_ratio", "max_displacement", "max_speed",
-                "max_kinetic_energy", "centroid_drop"]
+        keys = [
+            "final_height_ratio",
+            "spread_ratio",
+            "max_displacement",
+            "max_speed",
+            "max_kinetic_energy",
+            "centroid_drop",
+        ]
         rows = [(k, metrics.get(k)) for k in keys if k in metrics]
         vr = metrics.get("volume_ratio") or {}
-        rows += [("volume ratio min", vr.get("overall_min")), ("volume ratio max", vr.get("overall_max"))]
+        rows += [
+            ("volume ratio min", vr.get("overall_min")),
+            ("volume ratio max", vr.get("overall_max")),
+        ]
         osc = metrics.get("height_oscillation") or {}
-        rows += [("height oscillation [Hz]", osc.get("frequency_hz")),
-                 ("height damping ratio", osc.get("damping_ratio"))]
+        rows += [
+            ("height oscillation [Hz]", osc.get("frequency_hz")),
+            ("height damping ratio", osc.get("damping_ratio")),
+        ]
         out.append("<h2>Physical diagnostics</h2><table>")
         for k, v in rows:
             out.append(f"<tr><td>{e(k)}</td><td class='num'>{_fmt(v)}</td></tr>")
@@ -146,7 +173,9 @@ def render_report(run_dir: str | Path, params: Mapping[str, Any], *,
 
     history = params.get("history") or []
     if history:
-        out.append(f"<p class='muted'>Optimised over {len(history)} iterations (see log.jsonl).</p>")
+        out.append(
+            f"<p class='muted'>Optimised over {len(history)} iterations (see log.jsonl).</p>"
+        )
 
     if timings:
         total = sum(timings.values())
@@ -157,8 +186,11 @@ def render_report(run_dir: str | Path, params: Mapping[str, Any], *,
 
     versions = params.get("versions") or {}
     if versions:
-        out.append("<p class='muted'>" + ", ".join(f"{e(k)} {e(str(v))}" for k, v in versions.items())
-                   + "</p>")
+        out.append(
+            "<p class='muted'>"
+            + ", ".join(f"{e(k)} {e(str(v))}" for k, v in versions.items())
+            + "</p>"
+        )
     out.append("</body></html>")
     return "\n".join(out) + "\n"
 

@@ -146,11 +146,14 @@ class RunDirectory:
         folder must hold a run; nothing is deleted.
     """
 
-    def __init__(self, path: str | Path, *, resume: bool = False, force: bool = False,
-                 create: bool = True):
+    def __init__(
+        self, path: str | Path, *, resume: bool = False, force: bool = False, create: bool = True
+    ):
         self.path = Path(path)
         if self.path.exists() and not self.path.is_dir():
-            raise UserInputError(f"{self.path}: exists and is not a directory; choose another --out")
+            raise UserInputError(
+                f"{self.path}: exists and is not a directory; choose another --out"
+            )
         if not create:
             if not self.holds_run(self.path):
                 raise UserInputError(
@@ -176,7 +179,9 @@ class RunDirectory:
         try:
             self.path.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise UserInputError(f"{self.path}: cannot create the run directory ({err.strerror})") from None
+            raise UserInputError(
+                f"{self.path}: cannot create the run directory ({err.strerror})"
+            ) from None
         if not os.access(self.path, os.W_OK):
             raise UserInputError(f"{self.path}: the run directory is not writable")
 
@@ -246,8 +251,9 @@ class RunDirectory:
 
     def append_jsonl(self, name: str, record: Mapping[str, Any]) -> None:
         """Append one JSON line and flush it to disk (a crash loses at most this line)."""
-        line = json.dumps(_finite(json.loads(json.dumps(record, default=_json_default))),
-                          allow_nan=False)
+        line = json.dumps(
+            _finite(json.loads(json.dumps(record, default=_json_default))), allow_nan=False
+        )
         with open(self.file(name), "a", encoding="utf-8") as f:
             f.write(line + "\n")
             f.flush()
@@ -279,8 +285,9 @@ class RunDirectory:
         return out
 
 
-def write_trajectory(path: str | Path, *, x: np.ndarray, t: np.ndarray, F: np.ndarray | None = None,
-                     **extra: Any) -> Path:
+def write_trajectory(
+    path: str | Path, *, x: np.ndarray, t: np.ndarray, F: np.ndarray | None = None, **extra: Any
+) -> Path:
     """Write ``trajectory.npz`` atomically.
 
     Parameters
@@ -333,7 +340,9 @@ def read_trajectory(path: str | Path) -> dict[str, np.ndarray]:
         raise UserInputError(f"{path}: not a readable .npz trajectory ({err})") from None
     for key in ("x", "t"):
         if key not in data:
-            raise UserInputError(f"{path}: no array '{key}' (expected x [frames, particles, 3], t [frames])")
+            raise UserInputError(
+                f"{path}: no array '{key}' (expected x [frames, particles, 3], t [frames])"
+            )
     x = data["x"]
     if x.ndim != 3 or x.shape[2] != 3 or data["t"].shape != (x.shape[0],):
         raise UserInputError(

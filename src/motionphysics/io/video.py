@@ -61,9 +61,17 @@ def write_video(frames, path: str | Path, fps: float = 25.0) -> Path:
     tmp = path.with_name(f".{path.stem}.partial{suffix}")
     if suffix == ".mp4":
         arr = _pad_even(arr)
-        writer = imageio.get_writer(tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264",
-                                    pixelformat="yuv420p", quality=8, macro_block_size=1,
-                                    output_params=["-movflags", "+faststart"])
+        writer = imageio.get_writer(
+            tmp,
+            format="FFMPEG",
+            mode="I",
+            fps=fps,
+            codec="libx264",
+            pixelformat="yuv420p",
+            quality=8,
+            macro_block_size=1,
+            output_params=["-movflags", "+faststart"],
+        )
         try:
             for frame in arr:
                 writer.append_data(frame)
@@ -93,7 +101,9 @@ def read_video(path: str | Path) -> np.ndarray:
             finally:
                 reader.close()
     except (OSError, ValueError, RuntimeError) as err:
-        raise UserInputError(f"{path}: cannot read as a video ({str(err).splitlines()[0]})") from None
+        raise UserInputError(
+            f"{path}: cannot read as a video ({str(err).splitlines()[0]})"
+        ) from None
     out = []
     for f in frames:
         if f.ndim == 2:

@@ -35,7 +35,10 @@ def _min_sq_dist(a: Tensor, b: Tensor) -> Tensor:
     for start in range(0, a.shape[0], rows):
         # The matmul form of cdist loses ~1e-8 m^2 to cancellation in float32: as large
         # as the millimetre-scale residuals a fit ends with, so use direct differences.
-        d = torch.cdist(a[start : start + rows], b, compute_mode="donot_use_mm_for_euclid_dist") ** 2
+        d = (
+            torch.cdist(a[start : start + rows], b, compute_mode="donot_use_mm_for_euclid_dist")
+            ** 2
+        )
         out.append(d.min(dim=1).values)
     return torch.cat(out)
 
@@ -95,4 +98,6 @@ class TrajectoryMatchLoss(Loss):
         ref = self.reference[idx].to(pred.xs.device)  # [S, P, 3]
         if self.metric == "l2":
             return ((pred.xs - ref) ** 2).sum(dim=-1).mean()
-        return torch.stack([chamfer_distance(p, r) for p, r in zip(pred.xs, ref, strict=True)]).mean()
+        return torch.stack(
+            [chamfer_distance(p, r) for p, r in zip(pred.xs, ref, strict=True)]
+        ).mean()

@@ -84,7 +84,9 @@ class VideoMatchLoss(Loss):
                 f"{source}: expected frames of shape [frames, height, width, 3], got {tuple(ref.shape)}"
             )
         if not 0.0 <= ssim_weight <= 1.0:
-            raise UserInputError(f"optimize.ssim_weight: expected a value in [0, 1], got {ssim_weight}")
+            raise UserInputError(
+                f"optimize.ssim_weight: expected a value in [0, 1], got {ssim_weight}"
+            )
         self.reference = ref  # [T, H, W, 3]
         self.source = source
         self.ssim_weight = float(ssim_weight)

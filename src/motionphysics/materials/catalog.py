@@ -154,67 +154,126 @@ _KAPPA = ParamSpec("kappa", "Pa", 1e9, 5e9, "log", "crc_handbook", "bulk modulus
 
 MATERIALS: dict[str, MaterialClass] = {
     "elastic": MaterialClass(
-        "elastic", "Elastic",
+        "elastic",
+        "Elastic",
         (_E(1e7, 4e11, "callister_materials"), _nu(0.1, 0.5, "callister_materials")),
-        "fixed corotated", "identity",
+        "fixed corotated",
+        "identity",
         ("elastic", "elastic solid", "elastic material", "rubber", "rubbery", "jelly", "soft body"),
     ),
     "plasticine": MaterialClass(
-        "plasticine", "Plasticine",
-        (_E(1e6, 5e6, "ashby_materials"), _nu(0.3, 0.4, "ashby_materials"),
-         _tau(5e3, 2e4, "ashby_materials")),
-        "StVK", "von Mises with damage",
-        ("plasticine", "clay", "modelling clay", "modeling clay", "play-doh", "playdoh",
-         "plastically deformable"),
+        "plasticine",
+        "Plasticine",
+        (
+            _E(1e6, 5e6, "ashby_materials"),
+            _nu(0.3, 0.4, "ashby_materials"),
+            _tau(5e3, 2e4, "ashby_materials"),
+        ),
+        "StVK",
+        "von Mises with damage",
+        (
+            "plasticine",
+            "clay",
+            "modelling clay",
+            "modeling clay",
+            "play-doh",
+            "playdoh",
+            "plastically deformable",
+        ),
     ),
     "metal": MaterialClass(
-        "metal", "Metal",
-        (_E(4.5e10, 4.0e11, "callister_materials"), _nu(0.25, 0.35, "callister_materials"),
-         _tau(1e7, 2e9, "callister_materials")),
-        "StVK", "von Mises",
+        "metal",
+        "Metal",
+        (
+            _E(4.5e10, 4.0e11, "callister_materials"),
+            _nu(0.25, 0.35, "callister_materials"),
+            _tau(1e7, 2e9, "callister_materials"),
+        ),
+        "StVK",
+        "von Mises",
         ("metal", "metallic", "metals", "steel", "iron"),
     ),
     "foam": MaterialClass(
-        "foam", "Foam",
-        (_E(1e3, 1e7, "gibson_ashby_foam"), _nu(0.0, 0.3, "gibson_ashby_foam"),
-         _tau(1e4, 1e6, "gibson_ashby_foam"), _eta(0.1, 1.0, "gibson_ashby_foam")),
-        "StVK", "viscoplastic",
+        "foam",
+        "Foam",
+        (
+            _E(1e3, 1e7, "gibson_ashby_foam"),
+            _nu(0.0, 0.3, "gibson_ashby_foam"),
+            _tau(1e4, 1e6, "gibson_ashby_foam"),
+            _eta(0.1, 1.0, "gibson_ashby_foam"),
+        ),
+        "StVK",
+        "viscoplastic",
         ("foam", "foams", "sponge", "spongy", "viscoplastic foam", "cellular solid"),
     ),
     "sand": MaterialClass(
-        "sand", "Sand",
-        (ParamSpec("theta_fric", "deg", 27.0, 45.0, "linear", "mitchell_soil",
-                   "friction angle"),),
-        "StVK", "Drucker-Prager",
+        "sand",
+        "Sand",
+        (ParamSpec("theta_fric", "deg", 27.0, 45.0, "linear", "mitchell_soil", "friction angle"),),
+        "StVK",
+        "Drucker-Prager",
         ("sand", "granular", "granular material", "soil", "sandy", "powder"),
     ),
     "newtonian": MaterialClass(
-        "newtonian", "Newtonian fluid",
-        (ParamSpec("mu", "Pa s", 1e-3, 10.0, "log", "crc_handbook", "dynamic viscosity"),
-         _KAPPA),
-        "compressible neo-Hookean", "identity",
-        ("newtonian", "newtonian fluid", "newtonian liquid", "fluid", "liquid", "water",
-         "viscous fluid", "viscous liquid"),
+        "newtonian",
+        "Newtonian fluid",
+        (ParamSpec("mu", "Pa s", 1e-3, 10.0, "log", "crc_handbook", "dynamic viscosity"), _KAPPA),
+        "compressible neo-Hookean",
+        "identity",
+        (
+            "newtonian",
+            "newtonian fluid",
+            "newtonian liquid",
+            "fluid",
+            "liquid",
+            "water",
+            "viscous fluid",
+            "viscous liquid",
+        ),
     ),
     "non_newtonian": MaterialClass(
-        "non_newtonian", "Non-Newtonian fluid",
-        (ParamSpec("mu", "Pa s", 1e-3, 1e3, "log", "crc_handbook", "dynamic viscosity"),
-         _KAPPA,
-         _tau(1.0, 2e3, "ashby_materials"),
-         _eta(0.1, 1.0, "ashby_materials"),
-         ParamSpec("n", "1", 0.3, 1.0, "linear", "chhabra_rheology",
-                   "Herschel-Bulkley power-law index (1 = Bingham)", default=1.0)),
-        "StVK", "Herschel-Bulkley",
-        ("non_newtonian", "non-newtonian", "non newtonian", "nonnewtonian",
-         "non-newtonian fluid", "non newtonian fluid", "non-newtonian liquid",
-         "herschel-bulkley", "herschel bulkley", "bingham", "bingham plastic",
-         "viscoplastic fluid", "yield-stress fluid", "shear-thinning fluid", "paste"),
+        "non_newtonian",
+        "Non-Newtonian fluid",
+        (
+            ParamSpec("mu", "Pa s", 1e-3, 1e3, "log", "crc_handbook", "dynamic viscosity"),
+            _KAPPA,
+            _tau(1.0, 2e3, "ashby_materials"),
+            _eta(0.1, 1.0, "ashby_materials"),
+            ParamSpec(
+                "n",
+                "1",
+                0.3,
+                1.0,
+                "linear",
+                "chhabra_rheology",
+                "Herschel-Bulkley power-law index (1 = Bingham)",
+                default=1.0,
+            ),
+        ),
+        "StVK",
+        "Herschel-Bulkley",
+        (
+            "non_newtonian",
+            "non-newtonian",
+            "non newtonian",
+            "nonnewtonian",
+            "non-newtonian fluid",
+            "non newtonian fluid",
+            "non-newtonian liquid",
+            "herschel-bulkley",
+            "herschel bulkley",
+            "bingham",
+            "bingham plastic",
+            "viscoplastic fluid",
+            "yield-stress fluid",
+            "shear-thinning fluid",
+            "paste",
+        ),
     ),
 }
 assert tuple(MATERIALS) == MATERIAL_CLASSES  # ids in the kernels follow this order
 
-DENSITY = ParamSpec("density", "kg/m^3", 10.0, 2.3e4, "log", "crc_handbook",
-                    "mass density")
+DENSITY = ParamSpec("density", "kg/m^3", 10.0, 2.3e4, "log", "crc_handbook", "mass density")
 """Common to all classes (appendix table, 'Common' row; CRC and Wikipedia)."""
 
 PARAM_NAMES: tuple[str, ...] = ("E", "nu", "tau_Y", "eta", "theta_fric", "mu", "kappa", "n")
@@ -233,14 +292,16 @@ for _c in MATERIALS.values():
     for _a in (_c.name, _c.label, *_c.aliases):
         _ALIAS_TO_CLASS.setdefault(_norm_key(_a), _c.name)
 # Spellings seen in LLM answers that reduce to an ambiguous key above.
-_ALIAS_TO_CLASS.update({
-    "non newtonian": "non_newtonian",
-    "non newtonian fluid": "non_newtonian",
-    "nonnewtonian fluid": "non_newtonian",
-    "elastic body": "elastic",
-    "metal solid": "metal",
-    "granular sand": "sand",
-})
+_ALIAS_TO_CLASS.update(
+    {
+        "non newtonian": "non_newtonian",
+        "non newtonian fluid": "non_newtonian",
+        "nonnewtonian fluid": "non_newtonian",
+        "elastic body": "elastic",
+        "metal solid": "metal",
+        "granular sand": "sand",
+    }
+)
 
 
 def normalise_class(name: Any, field: str = "class") -> str:
@@ -370,7 +431,9 @@ def validate(
             f"(expected {', '.join(mc.names)})"
         )
     if density is None:
-        raise UserInputError(f"{origin}.density: missing (expected kg/m^3 in {DENSITY.range_text()})")
+        raise UserInputError(
+            f"{origin}.density: missing (expected kg/m^3 in {DENSITY.range_text()})"
+        )
     clamps: list[Clamp] = []
     out: dict[str, float] = {}
 

@@ -116,7 +116,6 @@ _SOLIDS = ("elastic", "plasticine", "metal", "foam")
 _YIELD_SCALED = ("plasticine", "metal", "foam")
 
 
-
 @dataclass(frozen=True)
 class SimContext:
     """What the map needs to know about the simulation it feeds.
@@ -150,7 +149,9 @@ class SimContext:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SimContext.{name} must be a positive finite number, got {v!r}")
         if self.yield_rule not in ("strain", "impact"):
-            raise ValueError(f"SimContext.yield_rule must be 'strain' or 'impact', got {self.yield_rule!r}")
+            raise ValueError(
+                f"SimContext.yield_rule must be 'strain' or 'impact', got {self.yield_rule!r}"
+            )
         if not (self.gravity >= 0 and math.isfinite(self.gravity)):
             raise ValueError(f"SimContext.gravity must be >= 0, got {self.gravity!r}")
 
@@ -223,8 +224,9 @@ def _where(cond, a, b):
         import torch
 
         ref = next(x for x in (a, b, cond) if _is_tensor(x) and x.is_floating_point())
-        return torch.where(_like(cond, ref).bool() if not _is_tensor(cond) else cond,
-                           _like(a, ref), _like(b, ref))
+        return torch.where(
+            _like(cond, ref).bool() if not _is_tensor(cond) else cond, _like(a, ref), _like(b, ref)
+        )
     return a if cond else b
 
 
@@ -344,8 +346,9 @@ def physical_to_sim(
     through) and, for sand, the derived ``E`` and ``nu``.
     """
     cls, values, density = _split(params, cls)
-    missing = [ps.name for ps in MATERIALS[cls].params
-               if ps.name not in values and ps.default is None]
+    missing = [
+        ps.name for ps in MATERIALS[cls].params if ps.name not in values and ps.default is None
+    ]
     if missing:
         raise ValueError(f"physical_to_sim: class {cls} needs {', '.join(missing)}")
     out: dict[str, Any] = {}
@@ -355,7 +358,9 @@ def physical_to_sim(
         out["E"] = E_sim
         out["nu"] = nu_sim
         if cls in _YIELD_SCALED:
-            out["tau_Y"] = values["tau_Y"] * _yield_factor(E_sim, nu_sim, values["E"], values["nu"], ctx)
+            out["tau_Y"] = values["tau_Y"] * _yield_factor(
+                E_sim, nu_sim, values["E"], values["nu"], ctx
+            )
         if "eta" in values:
             out["eta"] = values["eta"]
     elif cls == "sand":

@@ -38,8 +38,9 @@ class Parameterisation:
     when the values are per-particle tensors), ``k = len(names)``, in ``names`` order.
     """
 
-    def __init__(self, cls: str, names: Sequence[str] | None = None,
-                 dtype: torch.dtype = torch.float64):
+    def __init__(
+        self, cls: str, names: Sequence[str] | None = None, dtype: torch.dtype = torch.float64
+    ):
         self.cls = normalise_class(cls)
         allowed = (*MATERIALS[self.cls].names, "density")
         names = tuple(MATERIALS[self.cls].names if names is None else names)
@@ -88,15 +89,18 @@ class Parameterisation:
                     f"to_theta: {ps.name} = {x.tolist()} outside {ps.range_text()} "
                     f"(validate or clamp first)"
                 )
-            u = self._u_of(ps, x.clamp(min=max(ps.low, 1e-300) if ps.scale == "log" else ps.low,
-                                       max=ps.high)).clamp(EPS, 1.0 - EPS)
+            u = self._u_of(
+                ps, x.clamp(min=max(ps.low, 1e-300) if ps.scale == "log" else ps.low, max=ps.high)
+            ).clamp(EPS, 1.0 - EPS)
             out.append(torch.logit(u))
         return torch.stack(out)
 
     def from_theta(self, theta: torch.Tensor) -> dict[str, torch.Tensor]:
         """Physical values ``{name: tensor}`` of ``theta [k, ...]``, inside the ranges."""
         if theta.shape[0] != len(self.names):
-            raise ValueError(f"from_theta: expected theta[{len(self.names)}], got {tuple(theta.shape)}")
+            raise ValueError(
+                f"from_theta: expected theta[{len(self.names)}], got {tuple(theta.shape)}"
+            )
         return {ps.name: self._x_of(ps, torch.sigmoid(theta[i])) for i, ps in enumerate(self.specs)}
 
     def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:

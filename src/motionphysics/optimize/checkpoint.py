@@ -21,8 +21,14 @@ import torch
 from motionphysics.errors import UserInputError
 from motionphysics.io.rundir import atomic_write
 
-__all__ = ["CHECKPOINT_VERSION", "Checkpoint", "capture_rng", "restore_rng", "save_checkpoint",
-           "load_checkpoint"]
+__all__ = [
+    "CHECKPOINT_VERSION",
+    "Checkpoint",
+    "capture_rng",
+    "restore_rng",
+    "save_checkpoint",
+    "load_checkpoint",
+]
 
 CHECKPOINT_VERSION = 1
 
@@ -92,11 +98,15 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         # the file is one this program wrote into the run directory.
         data = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001 - any unreadable file is the same user-facing problem
-        raise UserInputError(f"{path}: not a readable checkpoint ({type(err).__name__}); "
-                             "remove it or run with --force") from None
+        raise UserInputError(
+            f"{path}: not a readable checkpoint ({type(err).__name__}); "
+            "remove it or run with --force"
+        ) from None
     if not isinstance(data, dict) or data.get("version") != CHECKPOINT_VERSION:
-        raise UserInputError(f"{path}: checkpoint version {data.get('version') if isinstance(data, dict) else '?'}"
-                             f", expected {CHECKPOINT_VERSION}; run with --force to start over")
+        raise UserInputError(
+            f"{path}: checkpoint version {data.get('version') if isinstance(data, dict) else '?'}"
+            f", expected {CHECKPOINT_VERSION}; run with --force to start over"
+        )
     return Checkpoint(
         next_iteration=int(data["next_iteration"]),
         theta=data["theta"],

@@ -149,7 +149,9 @@ def optimize(
     total = cfg.iterations if iterations is None else int(iterations)
     num_frames = problem.simulator.num_frames
     if num_frames < 2:
-        raise UserInputError("sim.frames: optimisation needs at least 2 frames (frame 0 is the initial state)")
+        raise UserInputError(
+            "sim.frames: optimisation needs at least 2 frames (frame 0 is the initial state)"
+        )
 
     generator = torch.Generator()
     generator.manual_seed(cfg.seed)
@@ -190,8 +192,13 @@ def optimize(
         if ck.stop_reason == "converged" or start >= total:
             params, sim_params = problem.report(theta)
             return OptimizeResult(
-                {k: v.detach().clone() for k, v in theta.items()}, params, sim_params, history,
-                ck.stop_reason or "iterations", ck.message or "already finished", start,
+                {k: v.detach().clone() for k, v in theta.items()},
+                params,
+                sim_params,
+                history,
+                ck.stop_reason or "iterations",
+                ck.message or "already finished",
+                start,
             )
     else:
         torch.manual_seed(cfg.seed)
@@ -215,7 +222,9 @@ def optimize(
         try:
             pred = problem.forward(theta, frames, cfg.grad_mode, cfg.window, timings)
             t0 = time.perf_counter()
-            loss = problem.loss(pred, LossContext(iteration=it, num_frames=num_frames, rng=generator))
+            loss = problem.loss(
+                pred, LossContext(iteration=it, num_frames=num_frames, rng=generator)
+            )
             loss_value = float(loss.detach())
             timings["loss"] = time.perf_counter() - t0
             t0 = time.perf_counter()
@@ -224,10 +233,14 @@ def optimize(
             timings["backward"] = time.perf_counter() - t0
         except SimulationError as err:
             stop_reason = "nan"
-            message = (f"iteration {it}: the simulation diverged ({err}); stopped with the parameters "
-                       "of the previous iteration. Lower optimize.lr or raise sim.substeps.")
-        grads = {n: (theta[n].grad if theta[n].grad is not None else torch.zeros_like(theta[n]))
-                 for n in names}
+            message = (
+                f"iteration {it}: the simulation diverged ({err}); stopped with the parameters "
+                "of the previous iteration. Lower optimize.lr or raise sim.substeps."
+            )
+        grads = {
+            n: (theta[n].grad if theta[n].grad is not None else torch.zeros_like(theta[n]))
+            for n in names
+        }
         grad_norm = {n: float(g.detach().double().norm()) for n, g in grads.items()}
         grad_norm["total"] = float(math.sqrt(sum(v * v for v in grad_norm.values())))
         record: dict[str, Any] = {
@@ -240,19 +253,32 @@ def optimize(
             "grad_norm": {k: _finite(v) for k, v in grad_norm.items()},
             "lr": lrs,
         }
-        if stop_reason is None and not (math.isfinite(loss_value) and math.isfinite(grad_norm["total"])):
+        if stop_reason is None and not (
+            math.isfinite(loss_value) and math.isfinite(grad_norm["total"])
+        ):
             what = "loss" if not math.isfinite(loss_value) else "gradient"
             stop_reason = "nan"
-            message = (f"iteration {it}: the {what} is not finite; stopped with the parameters of the "
-                       "previous iteration. Lower optimize.lr or raise sim.substeps.")
+            message = (
+                f"iteration {it}: the {what} is not finite; stopped with the parameters of the "
+                "previous iteration. Lower optimize.lr or raise sim.substeps."
+            )
         if stop_reason == "nan":
             record["stopped"] = "nan"
             record["time"] = {**timings, "total": time.perf_counter() - t_start}
             _append_log(log_path, record)
             history.append(record)
             save_checkpoint(
-                Checkpoint(it, theta, opt.state_dict(), capture_rng(generator), history[:-1], calm,
-                           "nan", message, fingerprint),
+                Checkpoint(
+                    it,
+                    theta,
+                    opt.state_dict(),
+                    capture_rng(generator),
+                    history[:-1],
+                    calm,
+                    "nan",
+                    message,
+                    fingerprint,
+                ),
                 ckpt_path,
             )
             break
@@ -270,14 +296,25 @@ def optimize(
         history.append(record)
         if calm >= CALM_ITERATIONS:
             stop_reason = "converged"
-            message = (f"converged after {it + 1} iterations (theta changed by less than "
-                       f"{cfg.tolerance:g} for {CALM_ITERATIONS} iterations)")
+            message = (
+                f"converged after {it + 1} iterations (theta changed by less than "
+                f"{cfg.tolerance:g} for {CALM_ITERATIONS} iterations)"
+            )
         elif it + 1 >= total:
             stop_reason = "iterations"
             message = f"finished {total} iterations"
         save_checkpoint(
-            Checkpoint(it + 1, theta, opt.state_dict(), capture_rng(generator), history, calm,
-                       stop_reason, message, fingerprint),
+            Checkpoint(
+                it + 1,
+                theta,
+                opt.state_dict(),
+                capture_rng(generator),
+                history,
+                calm,
+                stop_reason,
+                message,
+                fingerprint,
+            ),
             ckpt_path,
         )
         if progress is not None:
@@ -290,6 +327,11 @@ def optimize(
     completed = sum(1 for r in history if "stopped" not in r)
     params, sim_params = problem.report(theta)
     return OptimizeResult(
-        {k: v.detach().clone() for k, v in theta.items()}, params, sim_params, history,
-        stop_reason, message, completed,
+        {k: v.detach().clone() for k, v in theta.items()},
+        params,
+        sim_params,
+        history,
+        stop_reason,
+        message,
+        completed,
     )

@@ -114,7 +114,9 @@ class Problem:
         if unknown:
             raise ValueError(f"per-particle names {unknown} are not optimised names")
         if self.loss.needs_render and self.renderer is None:
-            raise ValueError(f"loss {self.loss.name!r} needs rendered frames but no renderer was given")
+            raise ValueError(
+                f"loss {self.loss.name!r} needs rendered frames but no renderer was given"
+            )
 
     # ----------------------------------------------------------------- theta leaves
     @property
@@ -136,7 +138,9 @@ class Problem:
                 v = v.expand(p).clone()
             leaves[n] = v.requires_grad_(True)
         if self.initial_velocity is not None:
-            leaves[VELOCITY] = torch.tensor(self.initial_velocity, dtype=torch.float32).requires_grad_(True)
+            leaves[VELOCITY] = torch.tensor(
+                self.initial_velocity, dtype=torch.float32
+            ).requires_grad_(True)
         return leaves
 
     # ------------------------------------------------------------------ the maps

@@ -31,7 +31,12 @@ def lr_factor(iteration: int, total: int, warmup: int, final_ratio: float = FINA
 
 
 def learning_rates(
-    names: list[str], base: float, per_param: dict[str, float], iteration: int, total: int, warmup: int
+    names: list[str],
+    base: float,
+    per_param: dict[str, float],
+    iteration: int,
+    total: int,
+    warmup: int,
 ) -> dict[str, float]:
     """Learning rate of each named parameter at ``iteration`` (per-parameter base rates
     from ``optimize.lr_per_param`` override ``optimize.lr``)."""

@@ -46,19 +46,46 @@ class Case:
 CASES: dict[str, Case] = {
     c.name: c
     for c in (
-        Case("elastic", "elastic", {"density": 1000.0, "E": 2.0e8, "nu": 0.3}, ("E", "nu"),
-             start={"nu": 0.22}, start_sim_factor={"E": 5.0},
-             tolerance={"E": ("rel", 0.10), "nu": ("abs", 0.05)}, lr=0.2,
-             # nu's gradient is small but Adam steps every coordinate at its rate; a slower
-             # rate keeps nu from drifting while the (nu-dependent) stiffness cap adjusts.
-             lr_per_param={"nu": 0.04}),
-        Case("metal", "metal", {"density": 7800.0, "E": 2.0e11, "nu": 0.3, "tau_Y": 2.0e8},
-             ("tau_Y",), start_sim_factor={"tau_Y": 0.2}, tolerance={"tau_Y": ("rel", 0.20)},
-             iterations=24),
-        Case("newtonian", "newtonian", {"density": 1000.0, "mu": 2.0, "kappa": 2.0e9}, ("mu",),
-             start_sim_factor={"mu": 0.2}, tolerance={"mu": ("rel", 0.20)}, iterations=24),
-        Case("sand", "sand", {"density": 1600.0, "theta_fric": 35.0}, ("theta_fric",),
-             start={"theta_fric": 29.5}, tolerance={"theta_fric": ("abs", 3.0)}, iterations=16),
+        Case(
+            "elastic",
+            "elastic",
+            {"density": 1000.0, "E": 2.0e8, "nu": 0.3},
+            ("E", "nu"),
+            start={"nu": 0.22},
+            start_sim_factor={"E": 5.0},
+            tolerance={"E": ("rel", 0.10), "nu": ("abs", 0.05)},
+            lr=0.2,
+            # nu's gradient is small but Adam steps every coordinate at its rate; a slower
+            # rate keeps nu from drifting while the (nu-dependent) stiffness cap adjusts.
+            lr_per_param={"nu": 0.04},
+        ),
+        Case(
+            "metal",
+            "metal",
+            {"density": 7800.0, "E": 2.0e11, "nu": 0.3, "tau_Y": 2.0e8},
+            ("tau_Y",),
+            start_sim_factor={"tau_Y": 0.2},
+            tolerance={"tau_Y": ("rel", 0.20)},
+            iterations=24,
+        ),
+        Case(
+            "newtonian",
+            "newtonian",
+            {"density": 1000.0, "mu": 2.0, "kappa": 2.0e9},
+            ("mu",),
+            start_sim_factor={"mu": 0.2},
+            tolerance={"mu": ("rel", 0.20)},
+            iterations=24,
+        ),
+        Case(
+            "sand",
+            "sand",
+            {"density": 1600.0, "theta_fric": 35.0},
+            ("theta_fric",),
+            start={"theta_fric": 29.5},
+            tolerance={"theta_fric": ("abs", 3.0)},
+            iterations=16,
+        ),
     )
 }
 
@@ -69,24 +96,46 @@ SIZES = {
 }
 
 
-def case_config(case: Case, material: dict[str, float], size: str = "fast", **optimize: Any) -> dict:
+def case_config(
+    case: Case, material: dict[str, float], size: str = "fast", **optimize: Any
+) -> dict:
     """Run-config mapping of ``case`` with the given physical ``material``."""
     s = SIZES[size]
     return {
-        "scene": {"source": "builtin:sphere", "scale": 1.0, "translate": [0, 0, 0.56],
-                  "max_particles": s["max_particles"]},
+        "scene": {
+            "source": "builtin:sphere",
+            "scale": 1.0,
+            "translate": [0, 0, 0.56],
+            "max_particles": s["max_particles"],
+        },
         "material": {"class": case.cls, **material},
-        "sim": {"grid": s["grid"], "frames": s["frames"], "frame_dt": 0.04,
-                "substeps": s["substeps"], "initial_velocity": [0.0, 0.0, -2.0]},
+        "sim": {
+            "grid": s["grid"],
+            "frames": s["frames"],
+            "frame_dt": 0.04,
+            "substeps": s["substeps"],
+            "initial_velocity": [0.0, 0.0, -2.0],
+        },
         "boundary_conditions": [
-            {"type": "surface_collider", "point": [0, 0, 0], "normal": [0, 0, 1],
-             "mode": "frictional", "friction": 0.4},
+            {
+                "type": "surface_collider",
+                "point": [0, 0, 0],
+                "normal": [0, 0, 1],
+                "mode": "frictional",
+                "friction": 0.4,
+            },
             {"type": "bounding_box"},
         ],
         "camera": {"width": 48, "height": 48},
-        "optimize": {"params": list(case.params), "boost": 3,
-                     "lr": case.lr, "lr_per_param": dict(case.lr_per_param),
-                     "iterations": case.iterations, "warmup": 2, **optimize},
+        "optimize": {
+            "params": list(case.params),
+            "boost": 3,
+            "lr": case.lr,
+            "lr_per_param": dict(case.lr_per_param),
+            "iterations": case.iterations,
+            "warmup": 2,
+            **optimize,
+        },
     }
 
 
@@ -94,8 +143,14 @@ def _error(kind: str, got: float, want: float) -> float:
     return abs(got - want) / abs(want) if kind == "rel" else abs(got - want)
 
 
-def run_case(case: Case | str, out_dir: str | Path, *, size: str = "fast",
-             grad_mode: str = "full", iterations: int | None = None) -> dict[str, Any]:
+def run_case(
+    case: Case | str,
+    out_dir: str | Path,
+    *,
+    size: str = "fast",
+    grad_mode: str = "full",
+    iterations: int | None = None,
+) -> dict[str, Any]:
     """Make the reference, fit from the far start, and report what was recovered.
 
     Returns a dict: true / start / final physical and simulation values, the error and
@@ -144,8 +199,10 @@ def run_case(case: Case | str, out_dir: str | Path, *, size: str = "fast",
         ok = ok and err <= tol
     to_tol = None
     for rec in res.history:
-        within = all(_error(kind, float(rec["sim_params"][n]), true_sim[n]) <= tol
-                     for n, (kind, tol) in case.tolerance.items())
+        within = all(
+            _error(kind, float(rec["sim_params"][n]), true_sim[n]) <= tol
+            for n, (kind, tol) in case.tolerance.items()
+        )
         if within and to_tol is None:
             to_tol = rec["iteration"]
         elif not within:
@@ -154,15 +211,22 @@ def run_case(case: Case | str, out_dir: str | Path, *, size: str = "fast",
         to_tol = None
     start_sim = {k: float(v) for k, v in physical_to_sim(start, ctx, cls=case.cls).items()}
     return {
-        "case": case.name, "size": size, "grad_mode": grad_mode,
+        "case": case.name,
+        "size": size,
+        "grad_mode": grad_mode,
         "particles": int(parts.simulation.model.particle_count),
-        "substeps": int(parts.simulation.substeps), "frames": int(true_cfg.sim.frames),
-        "true": dict(case.true), "true_sim": true_sim,
-        "start": {k: start[k] for k in case.params}, "start_sim": {k: start_sim[k] for k in case.params},
+        "substeps": int(parts.simulation.substeps),
+        "frames": int(true_cfg.sim.frames),
+        "true": dict(case.true),
+        "true_sim": true_sim,
+        "start": {k: start[k] for k in case.params},
+        "start_sim": {k: start_sim[k] for k in case.params},
         "final": {k: res.params[k] for k in case.params},
         "final_sim": {k: res.sim_params[k] for k in case.params},
-        "errors": errors, "ok": ok,
-        "iterations": res.iterations, "iterations_to_tolerance": to_tol,
+        "errors": errors,
+        "ok": ok,
+        "iterations": res.iterations,
+        "iterations_to_tolerance": to_tol,
         "seconds_per_iteration": seconds / max(1, res.iterations),
         "stop_reason": res.stop_reason,
     }

@@ -44,8 +44,15 @@ def bench_camera(size: int):
     return orbit_camera(30.0, 20.0, 4.0, (0.0, 0.0, 0.0), 45.0, size, size)
 
 
-def time_render(n: int, size: int, backward: bool, repeats: int, backend: str = "auto",
-                threads: int | None = None, seed: int = 0) -> dict:
+def time_render(
+    n: int,
+    size: int,
+    backward: bool,
+    repeats: int,
+    backend: str = "auto",
+    threads: int | None = None,
+    seed: int = 0,
+) -> dict:
     """Run the benchmark; returns the JSON-ready result dict (seconds per run)."""
     import torch
 
@@ -97,26 +104,32 @@ def _run(args) -> int:
 
     # Warp's load messages go to stdout; keep stdout for the result (--json is parsed).
     with contextlib.redirect_stdout(sys.stderr):
-        res = time_render(args.splats, args.size, args.backward, args.repeats, args.backend,
-                          args.threads)
+        res = time_render(
+            args.splats, args.size, args.backward, args.repeats, args.backend, args.threads
+        )
     if args.json:
         print(json.dumps(res))
     else:
         what = "forward+backward" if res["backward"] else "forward"
-        print(f"render {what}: {res['splats']} splats, {res['size']}x{res['size']}, "
-              f"{res['backend']}, {res['threads']} thread(s): median {res['seconds_median']:.4f} s "
-              f"(min {res['seconds_min']:.4f} s, {res['repeats']} runs; CPU {res['cpu_seconds_median']:.4f} s; "
-              f"load {res['load_average'][0]:.1f})")
+        print(
+            f"render {what}: {res['splats']} splats, {res['size']}x{res['size']}, "
+            f"{res['backend']}, {res['threads']} thread(s): median {res['seconds_median']:.4f} s "
+            f"(min {res['seconds_min']:.4f} s, {res['repeats']} runs; CPU {res['cpu_seconds_median']:.4f} s; "
+            f"load {res['load_average'][0]:.1f})"
+        )
     return 0
 
 
 def register_target(sub) -> None:
-    p = sub.add_parser("render", help="time the splat rasteriser on random splats",
-                       description=__doc__)
+    p = sub.add_parser(
+        "render", help="time the splat rasteriser on random splats", description=__doc__
+    )
     p.add_argument("--splats", type=int, default=20000, help="number of splats (default 20000)")
     p.add_argument("--size", type=int, default=256, help="image is SIZE x SIZE (default 256)")
     p.add_argument("--backward", action="store_true", help="time forward + backward")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores, <= 8)")
+    p.add_argument(
+        "--threads", type=int, default=None, help="torch threads (default: all cores, <= 8)"
+    )
     p.add_argument("--repeats", type=int, default=5, help="timed runs (default 5)")
     p.add_argument("--backend", default="auto", choices=["auto", "torch", "warp", "gsplat"])
     p.add_argument("--json", action="store_true", help="print one JSON object")

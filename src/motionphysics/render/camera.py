@@ -101,11 +101,20 @@ class Camera:
     def resized(self, width: int, height: int) -> Camera:
         """Same view at another image size (intrinsics scaled per axis)."""
         sx, sy = width / self.width, height / self.height
-        return Camera(self.world_to_cam, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy,
-                      int(width), int(height))
+        return Camera(
+            self.world_to_cam,
+            self.fx * sx,
+            self.fy * sy,
+            self.cx * sx,
+            self.cy * sy,
+            int(width),
+            int(height),
+        )
 
 
-def _look_at_matrix(position: torch.Tensor, right: torch.Tensor, forward: torch.Tensor) -> torch.Tensor:
+def _look_at_matrix(
+    position: torch.Tensor, right: torch.Tensor, forward: torch.Tensor
+) -> torch.Tensor:
     down = torch.linalg.cross(forward, right)
     R = torch.stack([right, down, forward])  # rows: camera axes in world coordinates
     out = torch.eye(4, dtype=torch.float64)
@@ -116,7 +125,9 @@ def _look_at_matrix(position: torch.Tensor, right: torch.Tensor, forward: torch.
 
 def _check_size(width: int, height: int, where: str) -> None:
     if int(width) < 1 or int(height) < 1:
-        raise UserInputError(f"{where}: image width and height must be positive, got {width}x{height}")
+        raise UserInputError(
+            f"{where}: image width and height must be positive, got {width}x{height}"
+        )
 
 
 def orbit_camera(
@@ -167,8 +178,15 @@ def orbit_camera(
     # forward x up, written so that it stays defined at elevation +-90 degrees.
     right = -math.sin(az) * e1 + math.cos(az) * e2
     fy = 0.5 * height / math.tan(math.radians(fov) / 2)
-    return Camera(_look_at_matrix(position, right, forward), fy, fy, width / 2.0, height / 2.0,
-                  int(width), int(height))
+    return Camera(
+        _look_at_matrix(position, right, forward),
+        fy,
+        fy,
+        width / 2.0,
+        height / 2.0,
+        int(width),
+        int(height),
+    )
 
 
 def frame_bounds(
@@ -253,5 +271,6 @@ def camera_from_config(cfg) -> Camera:
                 f"got {cfg.camera_index}"
             )
         return cams[cfg.camera_index].resized(cfg.width, cfg.height)
-    return orbit_camera(cfg.azimuth, cfg.elevation, cfg.radius, cfg.look_at, cfg.fov,
-                        cfg.width, cfg.height)
+    return orbit_camera(
+        cfg.azimuth, cfg.elevation, cfg.radius, cfg.look_at, cfg.fov, cfg.width, cfg.height
+    )

@@ -25,18 +25,22 @@ def _skew(v: torch.Tensor) -> torch.Tensor:
     """``[..., 3]`` -> the cross-product matrices ``[..., 3, 3]``."""
     z = torch.zeros_like(v[..., 0])
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return torch.stack([
-        torch.stack([z, -w, y], -1),
-        torch.stack([w, z, -x], -1),
-        torch.stack([-y, x, z], -1),
-    ], -2)
+    return torch.stack(
+        [
+            torch.stack([z, -w, y], -1),
+            torch.stack([w, z, -x], -1),
+            torch.stack([-y, x, z], -1),
+        ],
+        -2,
+    )
 
 
 def _inv_transpose(X: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(cofactor matrix ``[..., 3, 3]`` = det * X^{-T}, det ``[...]``) by cross products of rows."""
     r0, r1, r2 = X[..., 0, :], X[..., 1, :], X[..., 2, :]
-    cof = torch.stack([torch.linalg.cross(r1, r2), torch.linalg.cross(r2, r0),
-                       torch.linalg.cross(r0, r1)], -2)
+    cof = torch.stack(
+        [torch.linalg.cross(r1, r2), torch.linalg.cross(r2, r0), torch.linalg.cross(r0, r1)], -2
+    )
     return cof, (r0 * cof[..., 0, :]).sum(-1)
 
 
@@ -94,8 +98,10 @@ class _PolarRotation(torch.autograd.Function):
         # K is positive definite for det F > 0; tiny ridge keeps inverted/flat F finite.
         K = K + 1e-12 * eye
         A = R.transpose(-1, -2) @ G
-        a = torch.stack([A[..., 2, 1] - A[..., 1, 2], A[..., 0, 2] - A[..., 2, 0],
-                         A[..., 1, 0] - A[..., 0, 1]], -1)
+        a = torch.stack(
+            [A[..., 2, 1] - A[..., 1, 2], A[..., 0, 2] - A[..., 2, 0], A[..., 1, 0] - A[..., 0, 1]],
+            -1,
+        )
         b = torch.linalg.solve(K, a.unsqueeze(-1)).squeeze(-1)
         return R @ _skew(b)
 
@@ -106,8 +112,14 @@ def polar_rotation(F: torch.Tensor) -> torch.Tensor:
     return _PolarRotation.apply(F.reshape(-1, 3, 3)).reshape(shape)
 
 
-def deform_splats(splats, x: torch.Tensor, F: torch.Tensor, parent: torch.Tensor,
-                  offset: torch.Tensor, camera: Camera):
+def deform_splats(
+    splats,
+    x: torch.Tensor,
+    F: torch.Tensor,
+    parent: torch.Tensor,
+    offset: torch.Tensor,
+    camera: Camera,
+):
     """Deformed splats for one frame.
 
     Args:
@@ -137,8 +149,14 @@ def deform_splats(splats, x: torch.Tensor, F: torch.Tensor, parent: torch.Tensor
     return means, covs, colors
 
 
-def render_frames(sim_scene, xs: torch.Tensor, Fs: torch.Tensor, camera: Camera,
-                  background=(1.0, 1.0, 1.0), backend: str = "auto") -> torch.Tensor:
+def render_frames(
+    sim_scene,
+    xs: torch.Tensor,
+    Fs: torch.Tensor,
+    camera: Camera,
+    background=(1.0, 1.0, 1.0),
+    backend: str = "auto",
+) -> torch.Tensor:
     """Render a simulated sequence: ``xs [T, P, 3]``, ``Fs [T, P, 3, 3]`` -> rgb ``[T, H, W, 3]``.
 
     ``sim_scene`` provides ``splats``, ``splat_parent [N]`` and ``splat_offset [N, 3]``
@@ -167,4 +185,6 @@ def render_scene(scene, camera: Camera, background=(1.0, 1.0, 1.0), backend: str
 
     means = scene.means
     colors = sh_to_rgb(scene.sh, means - camera.position.to(means))
-    return rasterize(means, scene.covariances(), colors, scene.opacities, camera, background, backend)
+    return rasterize(
+        means, scene.covariances(), colors, scene.opacities, camera, background, backend
+    )

@@ -42,12 +42,22 @@ def rasterize_gsplat(means, covs, colors, opacities, camera, background):
     K = camera.K.to(device=dev, dtype=f32)[None]  # [1, 3, 3]
     bg = torch.as_tensor(background, device=dev, dtype=f32).reshape(1, 3)
     render, alphas, _meta = rasterization(
-        means=means.to(f32), quats=None, scales=None, opacities=opacities.to(f32),
+        means=means.to(f32),
+        quats=None,
+        scales=None,
+        opacities=opacities.to(f32),
         colors=colors.to(f32),
-        viewmats=viewmat, Ks=K, width=camera.width, height=camera.height,
-        near_plane=NEAR, eps2d=0.3, packed=False, backgrounds=bg,  # gsplat pads the depth channel itself
+        viewmats=viewmat,
+        Ks=K,
+        width=camera.width,
+        height=camera.height,
+        near_plane=NEAR,
+        eps2d=0.3,
+        packed=False,
+        backgrounds=bg,  # gsplat pads the depth channel itself
         render_mode="RGB+ED",
-        rasterize_mode="classic", covars=covs.to(f32),
+        rasterize_mode="classic",
+        covars=covs.to(f32),
     )
     render, alphas = render.to(dtype), alphas.to(dtype)
     return RenderOutput(render[0, ..., :3], alphas[0, ..., 0], render[0, ..., 3])

@@ -91,8 +91,13 @@ class Projected:
     extents: torch.Tensor
 
 
-def project_gaussians(means: torch.Tensor, covs: torch.Tensor, opacities: torch.Tensor,
-                      camera: Camera, near: float = NEAR) -> Projected:
+def project_gaussians(
+    means: torch.Tensor,
+    covs: torch.Tensor,
+    opacities: torch.Tensor,
+    camera: Camera,
+    near: float = NEAR,
+) -> Projected:
     """EWA projection of ``means [N, 3]`` (m), ``covs [N, 3, 3]`` (m²) to screen space."""
     R = camera.rotation.to(means)
     t = camera.translation.to(means)
@@ -106,10 +111,13 @@ def project_gaussians(means: torch.Tensor, covs: torch.Tensor, opacities: torch.
     tx = (pc[:, 0] / zs).clamp(-lim_x, lim_x) * zs
     ty = (pc[:, 1] / zs).clamp(-lim_y, lim_y) * zs
     zero = torch.zeros_like(zs)
-    J = torch.stack([
-        torch.stack([camera.fx / zs, zero, -camera.fx * tx / zs**2], -1),
-        torch.stack([zero, camera.fy / zs, -camera.fy * ty / zs**2], -1),
-    ], -2)  # [N, 2, 3]
+    J = torch.stack(
+        [
+            torch.stack([camera.fx / zs, zero, -camera.fx * tx / zs**2], -1),
+            torch.stack([zero, camera.fy / zs, -camera.fy * ty / zs**2], -1),
+        ],
+        -2,
+    )  # [N, 2, 3]
     M = J @ R  # [N, 2, 3]
     cov2 = M @ covs @ M.transpose(1, 2)  # [N, 2, 2]
     a = cov2[:, 0, 0] + EPS2D
@@ -172,8 +180,9 @@ def _composite(alpha: torch.Tensor, feats: torch.Tensor) -> tuple[torch.Tensor, 
     return acc, t_incl[..., -1]
 
 
-def rasterize_reference(means, covs, colors, opacities, camera: Camera, background,
-                        cut: str = "smooth") -> RenderOutput:
+def rasterize_reference(
+    means, covs, colors, opacities, camera: Camera, background, cut: str = "smooth"
+) -> RenderOutput:
     """Dense reference twin: every pixel against every splat (use float64, tiny scenes).
 
     Same image formation as :func:`rasterize`, no tiles, no culling beyond the near
@@ -184,8 +193,11 @@ def rasterize_reference(means, covs, colors, opacities, camera: Camera, backgrou
     order = torch.argsort(proj.depths.detach())
     keep = order[(proj.extents[order, 0] > 0)]
     H, W = camera.height, camera.width
-    ys, xs = torch.meshgrid(torch.arange(H, dtype=means.dtype) + 0.5,
-                            torch.arange(W, dtype=means.dtype) + 0.5, indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(H, dtype=means.dtype) + 0.5,
+        torch.arange(W, dtype=means.dtype) + 0.5,
+        indexing="ij",
+    )
     px, py = xs.reshape(-1, 1), ys.reshape(-1, 1)  # [HW, 1]
     alpha = _alpha(proj.means2d[keep], proj.conics[keep], opacities[keep], px, py, cut)  # [HW, n]
     feats = _features(colors, proj.depths)[keep]  # [n, 5]
@@ -246,8 +258,13 @@ def bin_tiles(proj: Projected, width: int, height: int, tile: int = TILE) -> Til
         counts = nx * ny
         total = int(counts.sum())
         if total == 0:
-            return TileBins(torch.zeros(0, dtype=torch.long, device=dev),
-                            torch.zeros(n_tiles + 1, dtype=torch.long, device=dev), tiles_x, tiles_y, tile)
+            return TileBins(
+                torch.zeros(0, dtype=torch.long, device=dev),
+                torch.zeros(n_tiles + 1, dtype=torch.long, device=dev),
+                tiles_x,
+                tiles_y,
+                tile,
+            )
         owner = torch.repeat_interleave(torch.arange(idx.numel(), device=dev), counts)  # [total]
         start = torch.cumsum(counts, 0) - counts
         local = torch.arange(total, device=dev) - start[owner]
@@ -263,8 +280,16 @@ def bin_tiles(proj: Projected, width: int, height: int, tile: int = TILE) -> Til
     return TileBins(ids, offsets, tiles_x, tiles_y, tile)
 
 
-def _raster_torch(proj: Projected, feats: torch.Tensor, opacities: torch.Tensor, bins: TileBins,
-                  width: int, height: int, tile: int = TILE, budget: int = 1 << 21):
+def _raster_torch(
+    proj: Projected,
+    feats: torch.Tensor,
+    opacities: torch.Tensor,
+    bins: TileBins,
+    width: int,
+    height: int,
+    tile: int = TILE,
+    budget: int = 1 << 21,
+):
     """Pure-PyTorch tile compositing; returns (acc ``[H, W, C]``, T ``[H, W]``).
 
     Tiles are processed in batches padded to the batch's longest list so one batch
@@ -273,11 +298,12 @@ def _raster_torch(proj: Projected, feats: torch.Tensor, opacities: torch.Tensor,
     dtype, device = feats.dtype, feats.device
     C = feats.shape[1]
     n_tiles = bins.tiles_x * bins.tiles_y
-    lengths = (bins.offsets[1:] - bins.offsets[:-1])
+    lengths = bins.offsets[1:] - bins.offsets[:-1]
     acc_tiles = torch.zeros(n_tiles, tile * tile, C, dtype=dtype, device=device)
     t_tiles = torch.ones(n_tiles, tile * tile, dtype=dtype, device=device)
-    ly, lx = torch.meshgrid(torch.arange(tile, device=device), torch.arange(tile, device=device),
-                            indexing="ij")
+    ly, lx = torch.meshgrid(
+        torch.arange(tile, device=device), torch.arange(tile, device=device), indexing="ij"
+    )
     ly, lx = ly.reshape(-1), lx.reshape(-1)
     active = torch.nonzero(lengths > 0).squeeze(1)
     # Group tiles of similar length together so padding stays small.
@@ -303,7 +329,9 @@ def _raster_torch(proj: Projected, feats: torch.Tensor, opacities: torch.Tensor,
         m2 = proj.means2d[sid]  # [B, L, 2]
         con = proj.conics[sid]
         op = opacities[sid] * valid.to(dtype)
-        alpha = _alpha(m2[:, None], con[:, None], op[:, None], px[..., None], py[..., None])  # [B,P,L]
+        alpha = _alpha(
+            m2[:, None], con[:, None], op[:, None], px[..., None], py[..., None]
+        )  # [B,P,L]
         acc, t_final = _composite(alpha, feats[sid][:, None].expand(-1, tile * tile, -1, -1))
         acc_list.append(acc)
         t_list.append(t_final)
@@ -339,7 +367,9 @@ def _check_inputs(means, covs, colors, opacities, camera, background) -> None:
 def resolve_backend(backend: str, device: torch.device) -> str:
     """The concrete backend for ``backend`` on tensors living on ``device``."""
     if backend not in BACKENDS:
-        raise UserInputError(f"render backend: expected one of {', '.join(BACKENDS)}, got {backend!r}")
+        raise UserInputError(
+            f"render backend: expected one of {', '.join(BACKENDS)}, got {backend!r}"
+        )
     if backend == "auto":
         return "gsplat" if device.type == "cuda" else "warp"
     if backend == "gsplat":
@@ -347,13 +377,21 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 
         gsplat_backend.check_available(device)
     if backend == "warp" and device.type != "cpu":
-        raise UserInputError("render backend 'warp' runs on CPU tensors; use 'gsplat' or 'torch' on CUDA")
+        raise UserInputError(
+            "render backend 'warp' runs on CPU tensors; use 'gsplat' or 'torch' on CUDA"
+        )
     return backend
 
 
-def rasterize(means: torch.Tensor, covs: torch.Tensor, colors: torch.Tensor,
-              opacities: torch.Tensor, camera: Camera, background=(1.0, 1.0, 1.0),
-              backend: str = "auto") -> RenderOutput:
+def rasterize(
+    means: torch.Tensor,
+    covs: torch.Tensor,
+    colors: torch.Tensor,
+    opacities: torch.Tensor,
+    camera: Camera,
+    background=(1.0, 1.0, 1.0),
+    backend: str = "auto",
+) -> RenderOutput:
     """Render splats; differentiable in ``means``, ``covs``, ``colors``, ``opacities``.
 
     Args:
@@ -374,8 +412,9 @@ def rasterize(means: torch.Tensor, covs: torch.Tensor, colors: torch.Tensor,
     if name == "warp":
         from motionphysics.render import warp_backend
 
-        rgb, alpha, depth = warp_backend.rasterize_warp(means, covs, colors, opacities, camera,
-                                                        background, WARP_TILE)
+        rgb, alpha, depth = warp_backend.rasterize_warp(
+            means, covs, colors, opacities, camera, background, WARP_TILE
+        )
         return RenderOutput(rgb, alpha, depth)
     proj = project_gaussians(means, covs, opacities, camera)
     bins = bin_tiles(proj, camera.width, camera.height, TILE)

@@ -47,9 +47,11 @@ def load_scene(source: str) -> GaussianScene:
     from motionphysics.scene import builtin, mesh, ply
 
     if not isinstance(source, str) or not source.strip():
-        raise UserInputError("scene.source: expected 'builtin:NAME' or a path to a .ply or mesh file")
+        raise UserInputError(
+            "scene.source: expected 'builtin:NAME' or a path to a .ply or mesh file"
+        )
     if source.startswith(BUILTIN_PREFIX):
-        return builtin.build_builtin(source[len(BUILTIN_PREFIX):])
+        return builtin.build_builtin(source[len(BUILTIN_PREFIX) :])
     path = Path(source).expanduser()
     ext = path.suffix.lower()
     if ext not in mesh.MESH_EXTENSIONS:

@@ -142,6 +142,7 @@ def _normalise(scene: GaussianScene) -> GaussianScene:
 
 # ---- the shapes ------------------------------------------------------------------------
 
+
 def _sphere():
     return [_ellipsoid((0, 0, 0), (0.5, 0.5, 0.5), _solid((0.85, 0.2, 0.2)))]
 
@@ -161,7 +162,9 @@ def _column():
 def _torus():
     import trimesh
 
-    m = trimesh.creation.torus(major_radius=0.35, minor_radius=0.15, major_sections=96, minor_sections=48)
+    m = trimesh.creation.torus(
+        major_radius=0.35, minor_radius=0.15, major_sections=96, minor_sections=48
+    )
     return [_mesh_part(m, _solid((0.86, 0.58, 0.32)))]
 
 
@@ -183,7 +186,9 @@ _BIRD_COLOURS = {
 }
 
 
-def _bird(style: str = "parts", parts: tuple[str, ...] = ("body", "head", "beak", "wing", "tail", "eye")):
+def _bird(
+    style: str = "parts", parts: tuple[str, ...] = ("body", "head", "beak", "wing", "tail", "eye")
+):
     def col(name):
         rgb = _BIRD_COLOURS[name]
         if style == "red":  # the paper's colour variant: body red, head blue
@@ -228,13 +233,21 @@ _BUILTINS: dict[str, tuple[str, Callable[[], list[_Part]]]] = {
     "column": ("stone-coloured box, twice as tall (z) as wide", _column),
     "torus": ("orange ring in the xy plane (donut-like), outer diameter 1", _torus),
     "rod": ("grey cylinder along x, length 1, diameter 0.12", _rod),
-    "bird": ("bird facing +x: blue body, red head, yellow beak, dark wings, green tail", lambda: _bird("parts")),
+    "bird": (
+        "bird facing +x: blue body, red head, yellow beak, dark wings, green tail",
+        lambda: _bird("parts"),
+    ),
     "duck": ("rubber duck facing +x: yellow body and head, orange beak, tail and wings", _duck),
-    "bird_textured": ("the bird shape with a high-contrast checker texture (appearance study)", lambda: _bird("textured")),
+    "bird_textured": (
+        "the bird shape with a high-contrast checker texture (appearance study)",
+        lambda: _bird("textured"),
+    ),
     "bird_plain": ("the bird shape in one uniform grey (appearance study)", lambda: _bird("plain")),
     "bird_red": ("the bird with a red body and blue head (colour variant)", lambda: _bird("red")),
-    "bird_simple": ("the bird without tail and beak (geometry variant)",
-                    lambda: _bird("parts", ("body", "head", "wing", "eye"))),
+    "bird_simple": (
+        "the bird without tail and beak (geometry variant)",
+        lambda: _bird("parts", ("body", "head", "wing", "eye")),
+    ),
 }
 
 

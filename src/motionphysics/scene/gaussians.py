@@ -44,9 +44,15 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     w, x, y, z = q.unbind(-1)
     r = torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     )
@@ -70,17 +76,37 @@ def rotmat_to_quat(r: torch.Tensor) -> torch.Tensor:
         out[mask] = torch.stack([w[mask], x[mask], y[mask], z[mask]], dim=-1)
 
     s0 = torch.sqrt((1 + tr).clamp_min(1e-12)) * 2
-    _fill(choice == 0, 0.25 * s0, (m[..., 2, 1] - m[..., 1, 2]) / s0,
-          (m[..., 0, 2] - m[..., 2, 0]) / s0, (m[..., 1, 0] - m[..., 0, 1]) / s0)
+    _fill(
+        choice == 0,
+        0.25 * s0,
+        (m[..., 2, 1] - m[..., 1, 2]) / s0,
+        (m[..., 0, 2] - m[..., 2, 0]) / s0,
+        (m[..., 1, 0] - m[..., 0, 1]) / s0,
+    )
     s1 = torch.sqrt((1 + m00 - m11 - m22).clamp_min(1e-12)) * 2
-    _fill(choice == 1, (m[..., 2, 1] - m[..., 1, 2]) / s1, 0.25 * s1,
-          (m[..., 0, 1] + m[..., 1, 0]) / s1, (m[..., 0, 2] + m[..., 2, 0]) / s1)
+    _fill(
+        choice == 1,
+        (m[..., 2, 1] - m[..., 1, 2]) / s1,
+        0.25 * s1,
+        (m[..., 0, 1] + m[..., 1, 0]) / s1,
+        (m[..., 0, 2] + m[..., 2, 0]) / s1,
+    )
     s2 = torch.sqrt((1 + m11 - m00 - m22).clamp_min(1e-12)) * 2
-    _fill(choice == 2, (m[..., 0, 2] - m[..., 2, 0]) / s2, (m[..., 0, 1] + m[..., 1, 0]) / s2,
-          0.25 * s2, (m[..., 1, 2] + m[..., 2, 1]) / s2)
+    _fill(
+        choice == 2,
+        (m[..., 0, 2] - m[..., 2, 0]) / s2,
+        (m[..., 0, 1] + m[..., 1, 0]) / s2,
+        0.25 * s2,
+        (m[..., 1, 2] + m[..., 2, 1]) / s2,
+    )
     s3 = torch.sqrt((1 + m22 - m00 - m11).clamp_min(1e-12)) * 2
-    _fill(choice == 3, (m[..., 1, 0] - m[..., 0, 1]) / s3, (m[..., 0, 2] + m[..., 2, 0]) / s3,
-          (m[..., 1, 2] + m[..., 2, 1]) / s3, 0.25 * s3)
+    _fill(
+        choice == 3,
+        (m[..., 1, 0] - m[..., 0, 1]) / s3,
+        (m[..., 0, 2] + m[..., 2, 0]) / s3,
+        (m[..., 1, 2] + m[..., 2, 1]) / s3,
+        0.25 * s3,
+    )
     out = out * torch.where(out[..., :1] < 0, -1.0, 1.0).to(out.dtype)
     return out / out.norm(dim=-1, keepdim=True)
 
@@ -176,7 +202,9 @@ class GaussianScene:
 
     def to(self, *args, **kwargs) -> GaussianScene:
         """``torch.Tensor.to`` applied to every field."""
-        return GaussianScene(**{f.name: getattr(self, f.name).to(*args, **kwargs) for f in fields(self)})
+        return GaussianScene(
+            **{f.name: getattr(self, f.name).to(*args, **kwargs) for f in fields(self)}
+        )
 
     @staticmethod
     def concat(scenes: list[GaussianScene]) -> GaussianScene:
@@ -242,7 +270,9 @@ class GaussianScene:
                 )
         sh = self.sh
         if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3:
-            raise UserInputError(f"{origin}: field 'sh' has shape {tuple(sh.shape)}, expected (N, K, 3)")
+            raise UserInputError(
+                f"{origin}: field 'sh' has shape {tuple(sh.shape)}, expected (N, K, 3)"
+            )
         if sh.shape[1] not in [num_sh_coeffs(d) for d in _VALID_DEGREES]:
             raise UserInputError(
                 f"{origin}: field 'sh' has {sh.shape[1]} coefficients per channel, expected 1, 4, 9 or 16"
@@ -250,7 +280,9 @@ class GaussianScene:
         for f in fields(self):
             t = getattr(self, f.name)
             if not torch.is_floating_point(t):
-                raise UserInputError(f"{origin}: field '{f.name}' must be floating point, got {t.dtype}")
+                raise UserInputError(
+                    f"{origin}: field '{f.name}' must be floating point, got {t.dtype}"
+                )
             bad = ~torch.isfinite(t)
             if bool(bad.any()):
                 rows = bad.reshape(t.shape[0], -1).any(dim=1).nonzero()

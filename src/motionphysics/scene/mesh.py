@@ -108,7 +108,9 @@ def surface_splats(
     tn = np.linalg.norm(t, axis=1, keepdims=True)
     # A tangent parallel to the normal (degenerate input): use any perpendicular axis.
     alt = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-    t = np.where(tn > 1e-9, t / np.maximum(tn, 1e-300), alt / np.linalg.norm(alt, axis=1, keepdims=True))
+    t = np.where(
+        tn > 1e-9, t / np.maximum(tn, 1e-300), alt / np.linalg.norm(alt, axis=1, keepdims=True)
+    )
     b = np.cross(n, t)
     rot = np.stack([t, b, n], axis=2)  # columns = axes; det +1 since t x b = n
     quats = rotmat_to_quat(torch.from_numpy(rot)).numpy()
@@ -215,7 +217,9 @@ def mesh_to_gaussians(
         if sel.any():
             colors[sel] = _colour_sampler(m)(local_face[face[sel]], bary[sel])
     sigma = SIGMA_FACTOR * np.sqrt(total / count)
-    return surface_splats(points, normals, e1, colors, sigma, thickness_ratio, opacity).validate(origin)
+    return surface_splats(points, normals, e1, colors, sigma, thickness_ratio, opacity).validate(
+        origin
+    )
 
 
 def load_mesh(path: str | Path, count: int = DEFAULT_MESH_SPLATS, seed: int = 0) -> GaussianScene:

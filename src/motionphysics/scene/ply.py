@@ -63,7 +63,9 @@ def ply_kind(path: str | Path) -> str:
     if "face" in names and ply["face"].count > 0:
         return "mesh"
     if "vertex" not in names:
-        raise UserInputError(f"{path}: PLY has no 'vertex' element; expected 3DGS Gaussians or a mesh")
+        raise UserInputError(
+            f"{path}: PLY has no 'vertex' element; expected 3DGS Gaussians or a mesh"
+        )
     props = {p.name for p in ply["vertex"].properties}
     if "f_dc_0" in props:
         return "gaussians"
@@ -101,7 +103,9 @@ def read_ply(path: str | Path) -> GaussianScene:
         )
     want_rest = [f"f_rest_{i}" for i in range(n_rest)]
     if set(rest_names) != set(want_rest):
-        raise UserInputError(f"{path}: f_rest_* properties must be numbered f_rest_0..f_rest_{n_rest - 1}")
+        raise UserInputError(
+            f"{path}: f_rest_* properties must be numbered f_rest_0..f_rest_{n_rest - 1}"
+        )
     degree = _DEGREE_OF_REST[n_rest]
     k = num_sh_coeffs(degree)
     n = v.count
@@ -109,7 +113,11 @@ def read_ply(path: str | Path) -> GaussianScene:
 
     def cols(names: list[str]) -> np.ndarray:
         # [n, len(names)] float32; a float64 file is rounded to float32 here.
-        return np.stack([np.asarray(data[name], dtype=np.float32) for name in names], axis=1) if names else np.zeros((n, 0), np.float32)
+        return (
+            np.stack([np.asarray(data[name], dtype=np.float32) for name in names], axis=1)
+            if names
+            else np.zeros((n, 0), np.float32)
+        )
 
     means = cols(["x", "y", "z"])
     dc = cols(["f_dc_0", "f_dc_1", "f_dc_2"])  # [n, 3]
@@ -124,8 +132,14 @@ def read_ply(path: str | Path) -> GaussianScene:
         # rest[:, c*(k-1) + j] -> sh[:, 1 + j, c]
         sh[:, 1:, :] = rest.reshape(n, 3, k - 1).transpose(0, 2, 1)
 
-    for name, arr in (("x/y/z", means), ("f_dc_*", dc), ("f_rest_*", rest), ("opacity", opacity),
-                      ("scale_*", log_scales), ("rot_*", quats)):
+    for name, arr in (
+        ("x/y/z", means),
+        ("f_dc_*", dc),
+        ("f_rest_*", rest),
+        ("opacity", opacity),
+        ("scale_*", log_scales),
+        ("rot_*", quats),
+    ):
         bad = ~np.isfinite(arr)
         if bad.any():
             rows = np.nonzero(bad.reshape(n, -1).any(axis=1))[0]
@@ -134,7 +148,9 @@ def read_ply(path: str | Path) -> GaussianScene:
             )
     zero = np.abs(quats).max(axis=1) == 0  # (not a norm: that overflows for huge values)
     if zero.any():
-        raise UserInputError(f"{path}: property rot_* has a zero quaternion at index {int(np.argmax(zero))}")
+        raise UserInputError(
+            f"{path}: property rot_* has a zero quaternion at index {int(np.argmax(zero))}"
+        )
 
     scene = GaussianScene(
         means=torch.from_numpy(means),

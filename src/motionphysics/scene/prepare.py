@@ -99,6 +99,7 @@ class SimScene:
 
 # ---- 1. transform ------------------------------------------------------------------
 
+
 def rotation_matrix(axis: str, degrees: float) -> np.ndarray:
     """Right-handed rotation by ``degrees`` about world ``axis`` ('x','y','z'), float64 (3,3)."""
     a = math.radians(degrees)
@@ -148,6 +149,7 @@ def transform_scene(
 
 # ---- 3. anisotropy -------------------------------------------------------------------
 
+
 def regularise_anisotropy(scene: GaussianScene, max_ratio: float) -> GaussianScene:
     """Raise scales below ``largest / max_ratio`` to that value (per splat), as PhysGaussian.
 
@@ -161,11 +163,14 @@ def regularise_anisotropy(scene: GaussianScene, max_ratio: float) -> GaussianSce
 
 # ---- 4. domain ------------------------------------------------------------------------
 
+
 def _get(bc, key, default=None):
     return bc.get(key, default) if isinstance(bc, dict) else getattr(bc, key, default)
 
 
-def _grid_from_box(lo: np.ndarray, hi: np.ndarray, grid: int) -> tuple[float, tuple[int, int, int], np.ndarray]:
+def _grid_from_box(
+    lo: np.ndarray, hi: np.ndarray, grid: int
+) -> tuple[float, tuple[int, int, int], np.ndarray]:
     side = hi - lo
     dx = float(side.max()) / grid
     # The 1e-9 guard keeps the longest axis at exactly grid+1 nodes despite rounding.
@@ -231,6 +236,7 @@ def _given_domain(points: np.ndarray, domain, grid: int):
 
 # ---- 5. voxelisation and fill -------------------------------------------------------------
 
+
 def voxelise(
     splats: GaussianScene, origin: np.ndarray, dx: float, shape: tuple[int, int, int]
 ) -> np.ndarray:
@@ -257,11 +263,13 @@ def voxelise(
         sel = np.nonzero(keys == key)[0]
         h = half[sel[0]]
         grids = [np.linspace(-1.0, 1.0, 2 * int(n) + 1) if n > 0 else np.zeros(1) for n in h]
-        u = np.stack(np.meshgrid(*grids, indexing="ij"), axis=-1).reshape(-1, 3)  # (S,3) in sigma units
+        u = np.stack(np.meshgrid(*grids, indexing="ij"), axis=-1).reshape(
+            -1, 3
+        )  # (S,3) in sigma units
         # chunk so that the (n, S, 3) point array stays below ~3M points
         step = max(1, 3_000_000 // len(u))
         for c0 in range(0, len(sel), step):
-            idx = sel[c0:c0 + step]
+            idx = sel[c0 : c0 + step]
             local = u[None, :, :] * sig[idx, None, :]  # (n,S,3)
             pts = means[idx, None, :] + np.einsum("nij,nsj->nsi", axes[idx], local)
             cell = np.floor((pts.reshape(-1, 3) - origin) / dx).astype(np.int64)
@@ -314,7 +322,9 @@ def _cell_weights(occ: np.ndarray, interior: np.ndarray, fill: bool) -> np.ndarr
     return w
 
 
-def _particle_volumes(particles: np.ndarray, origin: np.ndarray, dx: float, weight: np.ndarray) -> np.ndarray:
+def _particle_volumes(
+    particles: np.ndarray, origin: np.ndarray, dx: float, weight: np.ndarray
+) -> np.ndarray:
     """Rest volume of each particle [m^3], float64 (P,).
 
     Rule: the object is the voxelisation, cell (i,j,k) holding ``weight[i,j,k] * dx^3``
@@ -339,6 +349,7 @@ def _particle_volumes(particles: np.ndarray, origin: np.ndarray, dx: float, weig
 
 
 # ---- 7. downsampling ---------------------------------------------------------------------------
+
 
 def stratified_subset(points: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
     """Sorted indices of ``k`` of the ``points (P,3)``, spread evenly in space.
@@ -378,6 +389,7 @@ def stratified_subset(points: np.ndarray, k: int, rng: np.random.Generator) -> n
 
 # ---- the entry point -------------------------------------------------------------------------
 
+
 def prepare(
     scene: GaussianScene,
     scene_cfg: SceneConfig,
@@ -399,12 +411,26 @@ def prepare(
     if scene_cfg.crop is not None:
         c = torch.tensor(scene_cfg.crop, dtype=splats.means.dtype)
         p = splats.means
-        keep &= ((p[:, 0] >= c[0]) & (p[:, 0] <= c[1]) & (p[:, 1] >= c[2]) & (p[:, 1] <= c[3])
-                 & (p[:, 2] >= c[4]) & (p[:, 2] <= c[5]))
+        keep &= (
+            (p[:, 0] >= c[0])
+            & (p[:, 0] <= c[1])
+            & (p[:, 1] >= c[2])
+            & (p[:, 1] <= c[3])
+            & (p[:, 2] >= c[4])
+            & (p[:, 2] <= c[5])
+        )
     if not bool(keep.any()):
-        where = (f"scene.opacity_threshold={scene_cfg.opacity_threshold} kept {n_opaque} of {splats.num}"
-                 + (f" and scene.crop={list(scene_cfg.crop)} kept none of them" if scene_cfg.crop else ""))
-        raise UserInputError(f"{origin_name}: no splats left to simulate ({where}); lower the threshold or widen the crop")
+        where = (
+            f"scene.opacity_threshold={scene_cfg.opacity_threshold} kept {n_opaque} of {splats.num}"
+            + (
+                f" and scene.crop={list(scene_cfg.crop)} kept none of them"
+                if scene_cfg.crop
+                else ""
+            )
+        )
+        raise UserInputError(
+            f"{origin_name}: no splats left to simulate ({where}); lower the threshold or widen the crop"
+        )
     splats = regularise_anisotropy(splats.subset(keep), scene_cfg.max_anisotropy)
 
     vis = splats.means.double().numpy()  # (N,3)
@@ -413,7 +439,9 @@ def prepare(
     if sim_cfg.domain is not None:
         lo, dx, dims, hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
     else:
-        lo, dx, dims, hi = fit_domain(vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback)
+        lo, dx, dims, hi = fit_domain(
+            vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback
+        )
 
     # Voxel box: cells aligned with the domain's grid around the particles, with a free
     # margin so that the outside is connected around the object (it may poke out of the
@@ -429,8 +457,11 @@ def prepare(
     if len(interior_cells) > scene_cfg.max_particles:
         # Clear cap: never more interior candidates than max_particles (an even subset;
         # the skipped cells' volume goes to the nearest particle, so mass is kept).
-        pick = stratified_subset(interior_cells.astype(np.float64), scene_cfg.max_particles,
-                                 np.random.default_rng(FILL_SEED))
+        pick = stratified_subset(
+            interior_cells.astype(np.float64),
+            scene_cfg.max_particles,
+            np.random.default_rng(FILL_SEED),
+        )
         interior_cells = interior_cells[pick]
     fill_pts = vox_origin + (interior_cells + 0.5) * dx
     particles = np.concatenate([vis, fill_pts])
@@ -443,7 +474,9 @@ def prepare(
     if len(particles) > scene_cfg.max_particles:
         from scipy.spatial import cKDTree
 
-        kept = stratified_subset(particles, scene_cfg.max_particles, np.random.default_rng(FILL_SEED + 1))
+        kept = stratified_subset(
+            particles, scene_cfg.max_particles, np.random.default_rng(FILL_SEED + 1)
+        )
         tree = cKDTree(particles[kept])
         is_kept = np.zeros(len(particles), dtype=bool)
         is_kept[kept] = True

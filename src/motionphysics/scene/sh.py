@@ -24,10 +24,21 @@ __all__ = ["sh_basis", "eval_sh", "rotate_sh", "sh_band_rotations"]
 
 _C0 = 0.28209479177387814
 _C1 = 0.4886025119029199
-_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+_C2 = (
+    1.0925484305920792,
+    -1.0925484305920792,
+    0.31539156525252005,
+    -1.0925484305920792,
+    0.5462742152960396,
+)
 _C3 = (
-    -0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-    -0.4570457994644658, 1.445305721320277, -0.5900435899266435,
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
 )
 
 
@@ -40,7 +51,11 @@ def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
     if degree >= 2:
         xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
         out += [
-            _C2[0] * xy, _C2[1] * yz, _C2[2] * (2 * zz - xx - yy), _C2[3] * xz, _C2[4] * (xx - yy),
+            _C2[0] * xy,
+            _C2[1] * yz,
+            _C2[2] * (2 * zz - xx - yy),
+            _C2[3] * xz,
+            _C2[4] * (xx - yy),
         ]
     if degree >= 3:
         out += [
@@ -72,7 +87,7 @@ def _probe(degree: int) -> tuple[torch.Tensor, list[torch.Tensor]]:
     phi = i * math.pi * (3 - math.sqrt(5))
     d = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=-1)
     b = sh_basis(d, degree)
-    pinvs = [torch.linalg.pinv(b[:, l * l:(l + 1) ** 2]) for l in range(1, degree + 1)]
+    pinvs = [torch.linalg.pinv(b[:, l * l : (l + 1) ** 2]) for l in range(1, degree + 1)]
     return d, pinvs
 
 
@@ -83,7 +98,7 @@ def sh_band_rotations(rot: torch.Tensor, degree: int) -> list[torch.Tensor]:
     # rows of R^T d for every probe: (R^T d)^T = d^T R
     rd = d @ rot  # [..., M, 3]
     b = sh_basis(rd, degree)  # [..., M, K]
-    return [pinvs[l - 1].to(rot.dtype) @ b[..., l * l:(l + 1) ** 2] for l in range(1, degree + 1)]
+    return [pinvs[l - 1].to(rot.dtype) @ b[..., l * l : (l + 1) ** 2] for l in range(1, degree + 1)]
 
 
 def rotate_sh(sh: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
@@ -98,6 +113,6 @@ def rotate_sh(sh: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
     mats = sh_band_rotations(rot.to(torch.float64), degree)
     parts = [sh[..., :1, :]]
     for l, a in enumerate(mats, start=1):
-        band = sh[..., l * l:(l + 1) ** 2, :]
+        band = sh[..., l * l : (l + 1) ** 2, :]
         parts.append(a.to(sh.dtype) @ band)
     return torch.cat(parts, dim=-2)

@@ -113,8 +113,15 @@ def _active_tape():
     return ctx.runtime.tape
 
 
-def _launch(kernel, dim, inputs: list, targets: list, extra_outputs: Sequence = (), device=None,
-            grid_offset=None):
+def _launch(
+    kernel,
+    dim,
+    inputs: list,
+    targets: list,
+    extra_outputs: Sequence = (),
+    device=None,
+    grid_offset=None,
+):
     """Launch ``kernel(*inputs, *sources, *targets, *extra_outputs)`` modifying ``targets`` in place.
 
     Without an active tape the sources ARE the targets (each thread reads and writes only
@@ -128,24 +135,48 @@ def _launch(kernel, dim, inputs: list, targets: list, extra_outputs: Sequence = 
     tape = _active_tape()
     needs_grad = any(getattr(a, "requires_grad", False) for a in (*inputs, *targets))
     if tape is None or not needs_grad:
-        wp.launch(kernel, dim=dim, inputs=[*inputs, *targets], outputs=[*targets, *extra_outputs],
-                  device=device, record_tape=False)
+        wp.launch(
+            kernel,
+            dim=dim,
+            inputs=[*inputs, *targets],
+            outputs=[*targets, *extra_outputs],
+            device=device,
+            record_tape=False,
+        )
         return
     saved = [wp.clone(a, requires_grad=False) for a in targets]
-    wp.launch(kernel, dim=dim, inputs=[*inputs, *saved], outputs=[*targets, *extra_outputs],
-              device=device, record_tape=False)
+    wp.launch(
+        kernel,
+        dim=dim,
+        inputs=[*inputs, *saved],
+        outputs=[*targets, *extra_outputs],
+        device=device,
+        record_tape=False,
+    )
 
     def backward():
         # Incoming gradients are read from copies, so Warp's store-adjoint does not zero
         # them in place; the result is then written over the launch domain only.
-        adj_saved = [wp.zeros(a.shape, dtype=a.dtype, device=a.device) if a.grad is not None else None
-                     for a in targets]
-        adj_targets = [wp.clone(a.grad, requires_grad=False) if a.grad is not None else None for a in targets]
+        adj_saved = [
+            wp.zeros(a.shape, dtype=a.dtype, device=a.device) if a.grad is not None else None
+            for a in targets
+        ]
+        adj_targets = [
+            wp.clone(a.grad, requires_grad=False) if a.grad is not None else None for a in targets
+        ]
         adj_inputs = [tape.get_adjoint(a) for a in inputs]
         adj_extra = [tape.get_adjoint(a) for a in extra_outputs]
-        wp.launch(kernel, dim=dim, inputs=[*inputs, *saved], outputs=[*targets, *extra_outputs],
-                  adj_inputs=[*adj_inputs, *adj_saved], adj_outputs=[*adj_targets, *adj_extra],
-                  device=device, adjoint=True, record_tape=False)
+        wp.launch(
+            kernel,
+            dim=dim,
+            inputs=[*inputs, *saved],
+            outputs=[*targets, *extra_outputs],
+            adj_inputs=[*adj_inputs, *adj_saved],
+            adj_outputs=[*adj_targets, *adj_extra],
+            device=device,
+            adjoint=True,
+            record_tape=False,
+        )
         for a, g in zip(targets, adj_saved, strict=True):
             if g is None:
                 continue
@@ -154,8 +185,14 @@ def _launch(kernel, dim, inputs: list, targets: list, extra_outputs: Sequence = 
             else:
                 from motionphysics.sim import boundary_kernels as K
 
-                wp.launch(K._copy_grid_region, dim=dim, inputs=[grid_offset, g], outputs=[a.grad],
-                          device=device, record_tape=False)
+                wp.launch(
+                    K._copy_grid_region,
+                    dim=dim,
+                    inputs=[grid_offset, g],
+                    outputs=[a.grad],
+                    device=device,
+                    record_tape=False,
+                )
 
     tracked = [a for a in (*inputs, *targets) if isinstance(a, wp.array) and a.grad is not None]
     tape.record_func(backward=backward, arrays=tracked)
@@ -186,7 +223,9 @@ def _window(entry, where: str) -> _Window:
         raise UserInputError(f"{where}.end: expected end > start, got start={start:g}, end={end:g}")
     if entry.unit == "substeps":
         if start != round(start) or (end != round(end) and end != _NO_END):
-            raise UserInputError(f"{where}: with unit 'substeps', start and end must be whole substep indices")
+            raise UserInputError(
+                f"{where}: with unit 'substeps', start and end must be whole substep indices"
+            )
         if start < 0:
             raise UserInputError(f"{where}.start: expected a substep index >= 0, got {start:g}")
     return _Window(start, end, entry.unit)
@@ -212,7 +251,9 @@ def _box(box, where: str) -> tuple[np.ndarray, np.ndarray]:
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         raise UserInputError(f"{where}: box corners must be finite")
     if not np.all(lo < hi):
-        raise UserInputError(f"{where}: expected [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max")
+        raise UserInputError(
+            f"{where}: expected [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max"
+        )
     return lo, hi
 
 
@@ -256,7 +297,9 @@ def _selection(entry, x0: np.ndarray, where: str) -> np.ndarray:
     else:
         return np.ones(x0.shape[0], dtype=bool)
     if not sel.any():
-        raise UserInputError(f"{where}.{shape}: selects no particles (the particles span x,y,z {_span(x0)})")
+        raise UserInputError(
+            f"{where}.{shape}: selects no particles (the particles span x,y,z {_span(x0)})"
+        )
     return sel
 
 
@@ -324,7 +367,9 @@ class BoundaryProgram:
     # -------------------------------------------------------------- construction
 
     @classmethod
-    def from_config(cls, boundary_conditions: Sequence, forces: Sequence, model, x0=None) -> BoundaryProgram:
+    def from_config(
+        cls, boundary_conditions: Sequence, forces: Sequence, model, x0=None
+    ) -> BoundaryProgram:
         """Build from config entries and a sim Model (CONTRACTS.md: Model fields used).
 
         ``x0``: initial particle positions [m], (P, 3) array / tensor / wp.array vec3;
@@ -333,15 +378,31 @@ class BoundaryProgram:
         if x0 is None:
             x0 = getattr(model, "particle_x0", None)
             if x0 is None:
-                raise TypeError("BoundaryProgram.from_config needs x0= or model.particle_x0 (initial positions)")
+                raise TypeError(
+                    "BoundaryProgram.from_config needs x0= or model.particle_x0 (initial positions)"
+                )
         return cls.build(
-            boundary_conditions, forces, x0=x0, domain_lo=model.domain_lo, dx=model.dx,
-            grid_dims=model.grid_dims, device=model.device,
+            boundary_conditions,
+            forces,
+            x0=x0,
+            domain_lo=model.domain_lo,
+            dx=model.dx,
+            grid_dims=model.grid_dims,
+            device=model.device,
         )
 
     @classmethod
-    def build(cls, boundary_conditions: Sequence, forces: Sequence, *, x0, domain_lo, dx: float,
-              grid_dims, device: str = "cpu") -> BoundaryProgram:
+    def build(
+        cls,
+        boundary_conditions: Sequence,
+        forces: Sequence,
+        *,
+        x0,
+        domain_lo,
+        dx: float,
+        grid_dims,
+        device: str = "cpu",
+    ) -> BoundaryProgram:
         """Build from config entries and explicit geometry.
 
         ``x0``: initial particle positions [m], (P, 3); ``domain_lo`` [m] (3,) position of
@@ -353,7 +414,13 @@ class BoundaryProgram:
         elif hasattr(x0, "numpy") and not isinstance(x0, np.ndarray):
             x0 = x0.numpy()
         x0 = np.asarray(x0, dtype=np.float64).reshape(-1, 3)
-        prog = cls(particle_count=x0.shape[0], device=device, domain_lo=domain_lo, dx=dx, grid_dims=grid_dims)
+        prog = cls(
+            particle_count=x0.shape[0],
+            device=device,
+            domain_lo=domain_lo,
+            dx=dx,
+            grid_dims=grid_dims,
+        )
         for i, bc in enumerate(boundary_conditions):
             where = f"boundary_conditions[{i}]"
             prog._add_bc(_as_model(bc, BoundaryCondition, where), where)
@@ -381,22 +448,37 @@ class BoundaryProgram:
         if isinstance(bc, ClampGrid):
             lo, hi = _box(bc.box, f"{where}.box")
             tol = 1e-4 * self.dx
-            if not all(np.any((self._node_positions_1d(a) >= lo[a] - tol) & (self._node_positions_1d(a) <= hi[a] + tol))
-                       for a in range(3)):
+            if not all(
+                np.any(
+                    (self._node_positions_1d(a) >= lo[a] - tol)
+                    & (self._node_positions_1d(a) <= hi[a] + tol)
+                )
+                for a in range(3)
+            ):
                 raise UserInputError(f"{where}.box: contains no grid node of the simulation domain")
             vel = _finite(bc.velocity, f"{where}.velocity")
             param = self._new_param(f"{where}.velocity", vel, "m/s")
             axis = tuple(1.0 if a else 0.0 for a in bc.axis)
             if not any(bc.axis):
                 raise UserInputError(f"{where}.axis: expected at least one clamped axis (true)")
-            self._grid_ops.append(_GridOp(where, win, "clamp_grid",
-                                          {"box_lo": _t3(lo), "box_hi": _t3(hi), "axis": axis}, param))
+            self._grid_ops.append(
+                _GridOp(
+                    where,
+                    win,
+                    "clamp_grid",
+                    {"box_lo": _t3(lo), "box_hi": _t3(hi), "axis": axis},
+                    param,
+                )
+            )
         elif isinstance(bc, BoundingBox):
             if 2 * bc.padding >= min(self.grid_dims):
                 raise UserInputError(
-                    f"{where}.padding: {bc.padding} cells leaves no interior in a grid of {self.grid_dims} nodes")
+                    f"{where}.padding: {bc.padding} cells leaves no interior in a grid of {self.grid_dims} nodes"
+                )
             param = self._new_param(f"{where}.friction", float(bc.friction), "-")
-            self._grid_ops.append(_GridOp(where, win, "bounding_box", {"padding": int(bc.padding)}, param))
+            self._grid_ops.append(
+                _GridOp(where, win, "bounding_box", {"padding": int(bc.padding)}, param)
+            )
         elif isinstance(bc, SurfaceCollider):
             point = _finite(bc.point, f"{where}.point")
             normal = _unit(bc.normal, f"{where}.normal")
@@ -405,14 +487,23 @@ class BoundaryProgram:
                 use_box = bc.box is not None
                 lo, hi = _box(bc.box, f"{where}.box") if use_box else (np.zeros(3), np.zeros(3))
                 param = self._new_param(f"{where}.damping", float(bc.damping), "-")
-                self._grid_ops.append(_GridOp(where, win, "cut",
-                                              {**geo, "use_box": int(use_box), "box_lo": _t3(lo),
-                                               "box_hi": _t3(hi)}, param))
-                self._cut_ops.append(_CutOp(where, win, int(use_box), _t3(lo), _t3(hi),
-                                            _t3(point), _t3(normal)))
+                self._grid_ops.append(
+                    _GridOp(
+                        where,
+                        win,
+                        "cut",
+                        {**geo, "use_box": int(use_box), "box_lo": _t3(lo), "box_hi": _t3(hi)},
+                        param,
+                    )
+                )
+                self._cut_ops.append(
+                    _CutOp(where, win, int(use_box), _t3(lo), _t3(hi), _t3(point), _t3(normal))
+                )
                 return
             if bc.box is not None:
-                raise UserInputError(f"{where}.box: only the 'cut' mode takes a box (mode is {bc.mode!r})")
+                raise UserInputError(
+                    f"{where}.box: only the 'cut' mode takes a box (mode is {bc.mode!r})"
+                )
             if bc.mode == "sticky" and bc.friction not in (None, 0.0):
                 raise UserInputError(f"{where}.friction: must be 0 (or absent) with mode 'sticky'")
             param = None
@@ -430,29 +521,44 @@ class BoundaryProgram:
         self.selected[where] = int(sel.sum())
         mask = wp.array(sel.astype(np.float32), dtype=float, device=self.device)
         if isinstance(force, AddConstantForce | AddImpulse):
-            param = self._new_param(f"{where}.force", _finite(force.force, f"{where}.force"), "m/s^2")
+            param = self._new_param(
+                f"{where}.force", _finite(force.force, f"{where}.force"), "m/s^2"
+            )
             self._particle_ops.append(_ParticleOp(where, win, "accel", mask, {}, param))
         elif isinstance(force, ForceParticlesTranslation):
             if not any(force.axis):
                 raise UserInputError(f"{where}.axis: expected at least one imposed axis (true)")
-            param = self._new_param(f"{where}.velocity", _finite(force.velocity, f"{where}.velocity"), "m/s")
+            param = self._new_param(
+                f"{where}.velocity", _finite(force.velocity, f"{where}.velocity"), "m/s"
+            )
             axis = tuple(1.0 if a else 0.0 for a in force.axis)
-            self._particle_ops.append(_ParticleOp(where, win, "translation", mask, {"axis": axis}, param))
+            self._particle_ops.append(
+                _ParticleOp(where, win, "translation", mask, {"axis": axis}, param)
+            )
         elif isinstance(force, ForceParticlesRotation):
             center = _finite(force.center, f"{where}.center")
             axis = _unit(force.axis_direction, f"{where}.axis_direction")
             omega = _finite(force.angular_velocity, f"{where}.angular_velocity")
             param = self._new_param(f"{where}.angular_velocity", omega, "rad/s")
-            self._particle_ops.append(_ParticleOp(where, win, "rotation", mask,
-                                                  {"center": _t3(center), "axis": _t3(axis)}, param))
+            self._particle_ops.append(
+                _ParticleOp(
+                    where, win, "rotation", mask, {"center": _t3(center), "axis": _t3(axis)}, param
+                )
+            )
         elif isinstance(force, ReleaseParticles):
             if "end" not in force.model_fields_set:
-                raise UserInputError(f"{where}.end: release_particles needs the time the last layer is released")
-            release_at = _release_times(x0, sel, force.layers, "xyz".index(force.release_axis),
-                                        win.start, win.end)
+                raise UserInputError(
+                    f"{where}.end: release_particles needs the time the last layer is released"
+                )
+            release_at = _release_times(
+                x0, sel, force.layers, "xyz".index(force.release_axis), win.start, win.end
+            )
             arr = wp.array(release_at.astype(np.float32), dtype=float, device=self.device)
-            self._particle_ops.append(_ParticleOp(where, win, "release", arr, {}, None,
-                                                  last_release=float(release_at[sel].max())))
+            self._particle_ops.append(
+                _ParticleOp(
+                    where, win, "release", arr, {}, None, last_release=float(release_at[sel].max())
+                )
+            )
         else:  # pragma: no cover
             raise UserInputError(f"{where}.type: unknown force {type(force).__name__}")
 
@@ -504,16 +610,27 @@ class BoundaryProgram:
         n = self.particle_count
         for op in self._particle_ops:
             if op.kind == "translation" and op.window.active(t, substep, dt):
-                _launch(K._set_translation_velocity, n, [op.mask, op.param.array, op.scalars["axis"]],
-                        [state.v], device=self.device)
+                _launch(
+                    K._set_translation_velocity,
+                    n,
+                    [op.mask, op.param.array, op.scalars["axis"]],
+                    [state.v],
+                    device=self.device,
+                )
             elif op.kind == "rotation" and op.window.active(t, substep, dt):
-                _launch(K._set_rotation_velocity, n,
-                        [op.mask, op.scalars["center"], op.scalars["axis"], op.param.array, state.x],
-                        [state.v], device=self.device)
+                _launch(
+                    K._set_rotation_velocity,
+                    n,
+                    [op.mask, op.scalars["center"], op.scalars["axis"], op.param.array, state.x],
+                    [state.v],
+                    device=self.device,
+                )
             elif op.kind == "release":
                 now = op.window.now(t, substep, dt)
                 if now < op.last_release:
-                    _launch(K._zero_frozen_velocity, n, [op.mask, now], [state.v], device=self.device)
+                    _launch(
+                        K._zero_frozen_velocity, n, [op.mask, now], [state.v], device=self.device
+                    )
 
     def apply_grid(self, model, grid_v, t: float, substep: int, dt: float, region=None) -> None:
         """Grid conditions on node velocities ``grid_v`` [m/s] (nx, ny, nz) vec3, in place.
@@ -526,12 +643,17 @@ class BoundaryProgram:
 
         wp = init_warp()
         if tuple(grid_v.shape) != self.grid_dims:
-            raise ValueError(f"grid_v has shape {tuple(grid_v.shape)}, the program was built for {self.grid_dims}")
+            raise ValueError(
+                f"grid_v has shape {tuple(grid_v.shape)}, the program was built for {self.grid_dims}"
+            )
         if region is None:
             off, dims = (0, 0, 0), self.grid_dims
         else:
             off, dims = (tuple(int(a) for a in r) for r in region)
-            if any(o < 0 or n < 0 or o + n > g for o, n, g in zip(off, dims, self.grid_dims, strict=True)):
+            if any(
+                o < 0 or n < 0 or o + n > g
+                for o, n, g in zip(off, dims, self.grid_dims, strict=True)
+            ):
                 raise ValueError(f"region {region} is not inside the grid {self.grid_dims}")
             if min(dims) == 0:
                 return
@@ -543,18 +665,49 @@ class BoundaryProgram:
                 continue
             s = op.scalars
             if op.kind == "clamp_grid":
-                _launch(K._clamp_grid, dims,
-                        [off_v, lo, dx, s["box_lo"], s["box_hi"], op.param.array, s["axis"]], [grid_v], **kw)
+                _launch(
+                    K._clamp_grid,
+                    dims,
+                    [off_v, lo, dx, s["box_lo"], s["box_hi"], op.param.array, s["axis"]],
+                    [grid_v],
+                    **kw,
+                )
             elif op.kind == "bounding_box":
-                _launch(K._bounding_box, dims, [off_v, s["padding"], op.param.array], [grid_v], **kw)
+                _launch(
+                    K._bounding_box, dims, [off_v, s["padding"], op.param.array], [grid_v], **kw
+                )
             elif op.kind == "cut":
-                _launch(K._cut_grid, dims, [off_v, lo, dx, s["use_box"], s["box_lo"], s["box_hi"], s["point"],
-                                            s["normal"], op.param.array], [grid_v], **kw)
+                _launch(
+                    K._cut_grid,
+                    dims,
+                    [
+                        off_v,
+                        lo,
+                        dx,
+                        s["use_box"],
+                        s["box_lo"],
+                        s["box_hi"],
+                        s["point"],
+                        s["normal"],
+                        op.param.array,
+                    ],
+                    [grid_v],
+                    **kw,
+                )
             else:
-                mode = {"sticky": K.MODE_STICKY, "slip": K.MODE_SLIP, "frictional": K.MODE_FRICTIONAL}[op.kind]
+                mode = {
+                    "sticky": K.MODE_STICKY,
+                    "slip": K.MODE_SLIP,
+                    "frictional": K.MODE_FRICTIONAL,
+                }[op.kind]
                 friction = op.param.array if op.param is not None else self._zero_friction()
-                _launch(K._surface_collider, dims,
-                        [off_v, lo, dx, s["point"], s["normal"], int(mode), friction], [grid_v], **kw)
+                _launch(
+                    K._surface_collider,
+                    dims,
+                    [off_v, lo, dx, s["point"], s["normal"], int(mode), friction],
+                    [grid_v],
+                    **kw,
+                )
 
     def apply_post_g2p(self, model, state_in, state_out, t: float, substep: int, dt: float) -> None:
         """Forces, imposed motion, frozen and removed particles on ``state_out`` (in place).
@@ -569,23 +722,48 @@ class BoundaryProgram:
             if op.kind == "release":
                 now = op.window.now(t, substep, dt)
                 if now < op.last_release:
-                    _launch(K._hold_frozen, n, [op.mask, now, state_in.x],
-                            [state_out.x, state_out.v, state_out.C], device=self.device)
+                    _launch(
+                        K._hold_frozen,
+                        n,
+                        [op.mask, now, state_in.x],
+                        [state_out.x, state_out.v, state_out.C],
+                        device=self.device,
+                    )
                 continue
             if not op.window.active(t, substep, dt):
                 continue
             if op.kind == "accel":
-                _launch(K._add_acceleration, n, [op.mask, op.param.array, float(dt), *xb],
-                        [state_out.x, state_out.v], device=self.device)
+                _launch(
+                    K._add_acceleration,
+                    n,
+                    [op.mask, op.param.array, float(dt), *xb],
+                    [state_out.x, state_out.v],
+                    device=self.device,
+                )
             elif op.kind == "translation":
-                _launch(K._impose_translation, n,
-                        [op.mask, op.param.array, op.scalars["axis"], float(dt), *xb, state_in.x],
-                        [state_out.x, state_out.v], device=self.device)
+                _launch(
+                    K._impose_translation,
+                    n,
+                    [op.mask, op.param.array, op.scalars["axis"], float(dt), *xb, state_in.x],
+                    [state_out.x, state_out.v],
+                    device=self.device,
+                )
             elif op.kind == "rotation":
-                _launch(K._impose_rotation, n,
-                        [op.mask, op.scalars["center"], op.scalars["axis"], op.param.array, float(dt), *xb,
-                         state_in.x],
-                        [state_out.x, state_out.v, state_out.C], device=self.device)
+                _launch(
+                    K._impose_rotation,
+                    n,
+                    [
+                        op.mask,
+                        op.scalars["center"],
+                        op.scalars["axis"],
+                        op.param.array,
+                        float(dt),
+                        *xb,
+                        state_in.x,
+                    ],
+                    [state_out.x, state_out.v, state_out.C],
+                    device=self.device,
+                )
         if self._cut_ops:
             self._apply_cuts(state_in, state_out, t, substep, dt)
 
@@ -596,14 +774,20 @@ class BoundaryProgram:
         act_in = getattr(state_in, "active", None)
         act_out = getattr(state_out, "active", None)
         if act_in is None or act_out is None:
-            raise RuntimeError("a 'cut' collider needs State.active (float32 [P]); see CONTRACTS.md, sim")
+            raise RuntimeError(
+                "a 'cut' collider needs State.active (float32 [P]); see CONTRACTS.md, sim"
+            )
         # The first cut starts from state_in's mask; the mask is never differentiated.
         wp.copy(act_out, act_in)
         for op in self._cut_ops:
             mark = int(op.window.active(t, substep, dt))
-            _launch(K._cut_particles, self.particle_count,
-                    [mark, op.use_box, op.box_lo, op.box_hi, op.point, op.normal, state_in.x],
-                    [state_out.x, state_out.v, state_out.C, act_out], device=self.device)
+            _launch(
+                K._cut_particles,
+                self.particle_count,
+                [mark, op.use_box, op.box_lo, op.box_hi, op.point, op.normal, state_in.x],
+                [state_out.x, state_out.v, state_out.C, act_out],
+                device=self.device,
+            )
 
     def _zero_friction(self):
         if not hasattr(self, "_zero_friction_arr"):
@@ -612,7 +796,9 @@ class BoundaryProgram:
         return self._zero_friction_arr
 
 
-def _release_times(x0: np.ndarray, sel: np.ndarray, layers: int, axis: int, start: float, end: float) -> np.ndarray:
+def _release_times(
+    x0: np.ndarray, sel: np.ndarray, layers: int, axis: int, start: float, end: float
+) -> np.ndarray:
     """Release time per particle (float64 [P]): selected particles are cut into ``layers``
     equal-width slabs along ``axis``; the highest slab is released first, at
     ``start + (end - start) / layers``, the lowest at ``end``. Unselected: -inf (never frozen)."""

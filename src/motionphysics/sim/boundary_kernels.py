@@ -199,7 +199,9 @@ def _cut_grid(
 
 
 @wp.kernel
-def _copy_grid_region(off: wp.vec3i, src: wp.array3d(dtype=wp.vec3), dst: wp.array3d(dtype=wp.vec3)):
+def _copy_grid_region(
+    off: wp.vec3i, src: wp.array3d(dtype=wp.vec3), dst: wp.array3d(dtype=wp.vec3)
+):
     # Backward helper: the adjoint of a region launch replaces the gradient on the region only.
     i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
     i = i + off[0]

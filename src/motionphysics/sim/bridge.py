@@ -78,7 +78,9 @@ class _SimulateFn(torch.autograd.Function):
         grads: list[torch.Tensor | None] = []
         grads.append(torch.from_numpy(adj0.v.numpy().copy()) if ctx.needs_input_grad[6] else None)
         for j, name in enumerate(names):
-            grads.append(_wp_to_torch(model.params[name].grad) if ctx.needs_input_grad[7 + j] else None)
+            grads.append(
+                _wp_to_torch(model.params[name].grad) if ctx.needs_input_grad[7 + j] else None
+            )
         pg = model.boundary.param_grads() if model.boundary is not None else {}
         for j, name in enumerate(force_names):
             if ctx.needs_input_grad[7 + nparam + j]:
@@ -94,7 +96,10 @@ def _write(sim, names, values, force_names, force_values, v0) -> None:
         model.params[name].assign(t.detach().float().cpu().contiguous().numpy())
     if force_names:
         model.boundary.set_param_values(
-            {n: t.detach().float().cpu().numpy() for n, t in zip(force_names, force_values, strict=True)}
+            {
+                n: t.detach().float().cpu().numpy()
+                for n, t in zip(force_names, force_values, strict=True)
+            }
         )
     sim.state0.v.assign(v0.detach().float().cpu().contiguous().numpy())
 
@@ -150,9 +155,12 @@ def simulate(
     if force_names and model.boundary is None:
         raise KeyError("forces given but the simulation has no boundary program")
     force_values = [torch.as_tensor(forces[n], dtype=torch.float32) for n in force_names]
-    if torch.is_grad_enabled() and any(t.requires_grad for t in (v0, *values, *force_values)) \
-            and not model.requires_grad:
+    if (
+        torch.is_grad_enabled()
+        and any(t.requires_grad for t in (v0, *values, *force_values))
+        and not model.requires_grad
+    ):
         raise ValueError("build the simulation with requires_grad=True to differentiate it")
-    return _SimulateFn.apply(sim, names, force_names, frames, grad_mode, int(window), v0,
-                             *values, *force_values)
-
+    return _SimulateFn.apply(
+        sim, names, force_names, frames, grad_mode, int(window), v0, *values, *force_values
+    )

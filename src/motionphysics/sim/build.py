@@ -63,7 +63,9 @@ class Simulation:
         Raises :class:`~motionphysics.errors.SimulationError` on divergence.
         """
         res: RolloutResult = self.rollout.forward(
-            self.state0, int(frames or self.frames), keep_velocities=return_velocities,
+            self.state0,
+            int(frames or self.frames),
+            keep_velocities=return_velocities,
             keep_checkpoints=False,
         )
         if return_velocities:

@@ -116,7 +116,9 @@ def _adj_polar_rotation(F: wp.mat33, adj_ret: wp.mat33):
 def _corotated_tau(F: wp.mat33, R: wp.mat33, mu: float, lam: float):
     """Fixed corotated Kirchhoff stress 2 mu (F - R) F^T + lambda J (J - 1) I, R = polar(F)."""
     J = wp.determinant(F)
-    return 2.0 * mu * (F - R) * wp.transpose(F) + wp.identity(n=3, dtype=float) * (lam * J * (J - 1.0))
+    return 2.0 * mu * (F - R) * wp.transpose(F) + wp.identity(n=3, dtype=float) * (
+        lam * J * (J - 1.0)
+    )
 
 
 @wp.func
@@ -217,7 +219,9 @@ def von_mises_damage(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
 
 
 @wp.func
-def viscoplastic_foam(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float, eta: float, dt: float):
+def viscoplastic_foam(
+    F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float, eta: float, dt: float
+):
     """Foam: StVK-Hencky with the viscoplastic (viscously regularised von Mises) return map.
 
     The paper's formula: s = s_trial - y / (1 + eta / (2 mu dt)) s_trial/||s_trial||, with
@@ -346,44 +350,128 @@ def herschel_bulkley(
 
 
 @wp.func
-def _elastic(F: wp.mat33, C: wp.mat33, ep: float, dt: float, E: float, nu: float, tau_Y: float,
-             eta: float, theta_fric: float, mu: float, kappa: float, n: float):
+def _elastic(
+    F: wp.mat33,
+    C: wp.mat33,
+    ep: float,
+    dt: float,
+    E: float,
+    nu: float,
+    tau_Y: float,
+    eta: float,
+    theta_fric: float,
+    mu: float,
+    kappa: float,
+    n: float,
+):
     return fixed_corotated(F, ep, E, nu)
 
 
 @wp.func
-def _plasticine(F: wp.mat33, C: wp.mat33, ep: float, dt: float, E: float, nu: float, tau_Y: float,
-                eta: float, theta_fric: float, mu: float, kappa: float, n: float):
+def _plasticine(
+    F: wp.mat33,
+    C: wp.mat33,
+    ep: float,
+    dt: float,
+    E: float,
+    nu: float,
+    tau_Y: float,
+    eta: float,
+    theta_fric: float,
+    mu: float,
+    kappa: float,
+    n: float,
+):
     return von_mises_damage(F, ep, E, nu, tau_Y)
 
 
 @wp.func
-def _metal(F: wp.mat33, C: wp.mat33, ep: float, dt: float, E: float, nu: float, tau_Y: float,
-           eta: float, theta_fric: float, mu: float, kappa: float, n: float):
+def _metal(
+    F: wp.mat33,
+    C: wp.mat33,
+    ep: float,
+    dt: float,
+    E: float,
+    nu: float,
+    tau_Y: float,
+    eta: float,
+    theta_fric: float,
+    mu: float,
+    kappa: float,
+    n: float,
+):
     return von_mises_metal(F, ep, E, nu, tau_Y)
 
 
 @wp.func
-def _foam(F: wp.mat33, C: wp.mat33, ep: float, dt: float, E: float, nu: float, tau_Y: float,
-          eta: float, theta_fric: float, mu: float, kappa: float, n: float):
+def _foam(
+    F: wp.mat33,
+    C: wp.mat33,
+    ep: float,
+    dt: float,
+    E: float,
+    nu: float,
+    tau_Y: float,
+    eta: float,
+    theta_fric: float,
+    mu: float,
+    kappa: float,
+    n: float,
+):
     return viscoplastic_foam(F, ep, E, nu, tau_Y, eta, dt)
 
 
 @wp.func
-def _sand(F: wp.mat33, C: wp.mat33, ep: float, dt: float, E: float, nu: float, tau_Y: float,
-          eta: float, theta_fric: float, mu: float, kappa: float, n: float):
+def _sand(
+    F: wp.mat33,
+    C: wp.mat33,
+    ep: float,
+    dt: float,
+    E: float,
+    nu: float,
+    tau_Y: float,
+    eta: float,
+    theta_fric: float,
+    mu: float,
+    kappa: float,
+    n: float,
+):
     return drucker_prager_sand(F, ep, E, nu, theta_fric)
 
 
 @wp.func
-def _newtonian(F: wp.mat33, C: wp.mat33, ep: float, dt: float, E: float, nu: float, tau_Y: float,
-               eta: float, theta_fric: float, mu: float, kappa: float, n: float):
+def _newtonian(
+    F: wp.mat33,
+    C: wp.mat33,
+    ep: float,
+    dt: float,
+    E: float,
+    nu: float,
+    tau_Y: float,
+    eta: float,
+    theta_fric: float,
+    mu: float,
+    kappa: float,
+    n: float,
+):
     return weakly_compressible_fluid(F, C, ep, mu, kappa)
 
 
 @wp.func
-def _non_newtonian(F: wp.mat33, C: wp.mat33, ep: float, dt: float, E: float, nu: float, tau_Y: float,
-                   eta: float, theta_fric: float, mu: float, kappa: float, n: float):
+def _non_newtonian(
+    F: wp.mat33,
+    C: wp.mat33,
+    ep: float,
+    dt: float,
+    E: float,
+    nu: float,
+    tau_Y: float,
+    eta: float,
+    theta_fric: float,
+    mu: float,
+    kappa: float,
+    n: float,
+):
     return herschel_bulkley(F, ep, mu, kappa, tau_Y, eta, n, dt)
 
 

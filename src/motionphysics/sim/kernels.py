@@ -90,8 +90,18 @@ def _make_stress_kernel(cls_id: int):
             Cp = C[p]
             F_trial = (wp.identity(n=3, dtype=float) + dt * Cp) * F[p]
             Fe, ep_new, tau = model(
-                F_trial, Cp, ep[p], dt,
-                E[p], nu[p], tau_Y[p], eta[p], theta_fric[p], mu[p], kappa[p], n_hb[p],
+                F_trial,
+                Cp,
+                ep[p],
+                dt,
+                E[p],
+                nu[p],
+                tau_Y[p],
+                eta[p],
+                theta_fric[p],
+                mu[p],
+                kappa[p],
+                n_hb[p],
             )
             F_out[p] = Fe
             ep_out[p] = ep_new
@@ -139,7 +149,14 @@ def _p2g(
                 dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
                 q = weight * (mv + A * dpos)
                 # one atomic per node: momentum in xyz, mass in w
-                wp.atomic_add(grid_mv, chunk, r[0] + i, r[1] + j, r[2] + k, wp.vec4(q[0], q[1], q[2], weight * m))
+                wp.atomic_add(
+                    grid_mv,
+                    chunk,
+                    r[0] + i,
+                    r[1] + j,
+                    r[2] + k,
+                    wp.vec4(q[0], q[1], q[2], weight * m),
+                )
 
 
 @wp.kernel
@@ -255,7 +272,10 @@ def _g2p_adjoint(
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                v_new = v_new + (w[i, 0] * w[j, 1] * w[k, 2]) * grid_v[base[0] + i, base[1] + j, base[2] + k]
+                v_new = (
+                    v_new
+                    + (w[i, 0] * w[j, 1] * w[k, 2]) * grid_v[base[0] + i, base[1] + j, base[2] + k]
+                )
     xn = x[p] + dt * v_new
     axo = adj_x_out[p]
     # clamp passes the adjoint only where it is inactive
@@ -270,8 +290,14 @@ def _g2p_adjoint(
         for j in range(3):
             for k in range(3):
                 W = w[i, 0] * w[j, 1] * w[k, 2]
-                gradW = wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2],
-                                w[i, 0] * w[j, 1] * dw[k, 2]) * inv_dx
+                gradW = (
+                    wp.vec3(
+                        dw[i, 0] * w[j, 1] * w[k, 2],
+                        w[i, 0] * dw[j, 1] * w[k, 2],
+                        w[i, 0] * w[j, 1] * dw[k, 2],
+                    )
+                    * inv_dx
+                )
                 dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
                 g = grid_v[base[0] + i, base[1] + j, base[2] + k]
                 Bd = a_B * dpos
@@ -326,15 +352,25 @@ def _p2g_adjoint(
         for j in range(3):
             for k in range(3):
                 W = w[i, 0] * w[j, 1] * w[k, 2]
-                gradW = wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2],
-                                w[i, 0] * w[j, 1] * dw[k, 2]) * inv_dx
+                gradW = (
+                    wp.vec3(
+                        dw[i, 0] * w[j, 1] * w[k, 2],
+                        w[i, 0] * dw[j, 1] * w[k, 2],
+                        w[i, 0] * w[j, 1] * dw[k, 2],
+                    )
+                    * inv_dx
+                )
                 dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
                 aq4 = adj_grid_mv[chunk, r[0] + i, r[1] + j, r[2] + k]
                 aq = wp.vec3(aq4[0], aq4[1], aq4[2])
                 a_v = a_v + W * aq
                 a_A = a_A + W * wp.outer(aq, dpos)
                 a_mass = a_mass + W * (wp.dot(aq, vp) + aq4[3])
-                a_x = a_x + gradW * (wp.dot(aq, mv + A * dpos) + aq4[3] * m) - W * (wp.transpose(A) * aq)
+                a_x = (
+                    a_x
+                    + gradW * (wp.dot(aq, mv + A * dpos) + aq4[3] * m)
+                    - W * (wp.transpose(A) * aq)
+                )
     adj_x[p] = adj_x[p] + a_x
     adj_v[p] = adj_v[p] + m * a_v
     adj_affine[p] = adj_affine[p] + a_A

@@ -34,8 +34,17 @@ to ``constitutive.FOAM_DEFAULT_YIELD_FRACTION * E``)."""
 
 # Harmless fill values for parameters a particle's class does not read (keeps every
 # kernel argument finite, e.g. lame(E, nu) is evaluated by no class that lacks E).
-_FILL = {"E": 1.0, "nu": 0.3, "tau_Y": 0.0, "eta": 0.0, "theta_fric": 30.0,
-         "mu": 0.0, "kappa": 0.0, "n": 1.0, "density": 1.0}
+_FILL = {
+    "E": 1.0,
+    "nu": 0.3,
+    "tau_Y": 0.0,
+    "eta": 0.0,
+    "theta_fric": 30.0,
+    "mu": 0.0,
+    "kappa": 0.0,
+    "n": 1.0,
+    "density": 1.0,
+}
 
 
 def class_ids(value: Any, count: int) -> np.ndarray:
@@ -50,10 +59,14 @@ def class_ids(value: Any, count: int) -> np.ndarray:
         value = value.detach().cpu().numpy()
     arr = np.asarray(value)
     if arr.dtype.kind in "US":
-        return np.array([class_ids(str(s), 1)[0] for s in arr.reshape(-1)], dtype=np.int32).reshape(arr.shape)
+        return np.array([class_ids(str(s), 1)[0] for s in arr.reshape(-1)], dtype=np.int32).reshape(
+            arr.shape
+        )
     arr = np.broadcast_to(arr.astype(np.int64), (count,)) if arr.ndim == 0 else arr.astype(np.int64)
     if arr.shape != (count,):
-        raise UserInputError(f"material.class: expected one id or {count} per-particle ids, got shape {arr.shape}")
+        raise UserInputError(
+            f"material.class: expected one id or {count} per-particle ids, got shape {arr.shape}"
+        )
     if arr.min() < 0 or arr.max() >= len(MATERIAL_CLASSES):
         raise UserInputError(f"material.class: ids must be in [0, {len(MATERIAL_CLASSES) - 1}]")
     return arr.astype(np.int32)
@@ -66,13 +79,17 @@ def _per_particle(name: str, value: Any, count: int) -> np.ndarray:
     if arr.ndim == 0:
         arr = np.full(count, float(arr))
     if arr.shape != (count,):
-        raise UserInputError(f"material.{name}: expected a scalar or {count} per-particle values, got shape {arr.shape}")
+        raise UserInputError(
+            f"material.{name}: expected a scalar or {count} per-particle values, got shape {arr.shape}"
+        )
     if not np.all(np.isfinite(arr)):
         raise UserInputError(f"material.{name}: values must be finite")
     return arr.astype(np.float32)
 
 
-def material_arrays(material: dict[str, Any], count: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def material_arrays(
+    material: dict[str, Any], count: int
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Validate a sim-unit material dict into (class ids, per-particle float32 parameter arrays).
 
     ``material`` maps ``'class'`` (name, id, or per-particle ids) and parameter names of
@@ -83,7 +100,9 @@ def material_arrays(material: dict[str, Any], count: int) -> tuple[np.ndarray, d
         raise UserInputError("material.class: missing (expected a material class name or ids)")
     unknown = set(material) - set(PARAM_NAMES) - {"class"}
     if unknown:
-        raise UserInputError(f"material: unknown sim parameter(s) {sorted(unknown)}; expected {PARAM_NAMES}")
+        raise UserInputError(
+            f"material: unknown sim parameter(s) {sorted(unknown)}; expected {PARAM_NAMES}"
+        )
     ids = class_ids(material["class"], count)
     params = {name: np.full(count, _FILL[name], dtype=np.float32) for name in PARAM_NAMES}
     given = {k: _per_particle(k, v, count) for k, v in material.items() if k != "class"}
@@ -118,8 +137,12 @@ def _check_ranges(ids: np.ndarray, params: dict[str, np.ndarray]) -> None:
     bad("nu", uses_e, (params["nu"] > -1) & (params["nu"] < 0.5), "-1 < nu < 0.5")
     bad("tau_Y", np.ones_like(ids, bool), params["tau_Y"] >= 0, "tau_Y >= 0")
     bad("eta", np.ones_like(ids, bool), params["eta"] >= 0, "eta >= 0")
-    bad("theta_fric", ids == 4, (params["theta_fric"] >= 0) & (params["theta_fric"] < 90),
-        "a friction angle in [0, 90) degrees")
+    bad(
+        "theta_fric",
+        ids == 4,
+        (params["theta_fric"] >= 0) & (params["theta_fric"] < 90),
+        "a friction angle in [0, 90) degrees",
+    )
     fluid = np.isin(ids, [5, 6])
     bad("mu", fluid, params["mu"] >= 0, "mu >= 0")
     bad("mu", ids == 6, params["mu"] > 0, "mu > 0 (shear modulus of the non-Newtonian fluid)")
@@ -231,7 +254,9 @@ class Model:
             volume=wp.array(vol, dtype=float, device=device),
             material_class=wp.array(ids, dtype=wp.int32, device=device),
             params={
-                name: wp.array(params[name], dtype=float, device=device, requires_grad=requires_grad)
+                name: wp.array(
+                    params[name], dtype=float, device=device, requires_grad=requires_grad
+                )
                 for name in PARAM_NAMES
             },
             particle_x0=x0,

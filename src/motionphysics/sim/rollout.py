@@ -84,7 +84,9 @@ class Rollout:
         limit = RUNAWAY_CELLS_PER_SUBSTEP * self.model.dx / self.dt
         if not np.isfinite(speed) or speed > limit:
             cfl = cfl_number(self.model, self.model.dx, self.dt)
-            what = "NaN/Inf values" if not np.isfinite(speed) else f"runaway velocity {speed:.3g} m/s"
+            what = (
+                "NaN/Inf values" if not np.isfinite(speed) else f"runaway velocity {speed:.3g} m/s"
+            )
             raise SimulationError(
                 f"simulation diverged at frame {frame} ({what}); likely cause: the time step is too "
                 f"large for the stiffness (CFL number max wave speed * dt / dx = {cfl:.3g} with "
@@ -92,8 +94,14 @@ class Rollout:
                 "substeps (sim.substeps: auto), a softer material, or a coarser grid"
             )
 
-    def forward(self, state0: State, num_frames: int, keep_velocities: bool = False,
-                keep_checkpoints: bool = True, check: bool = True) -> RolloutResult:
+    def forward(
+        self,
+        state0: State,
+        num_frames: int,
+        keep_velocities: bool = False,
+        keep_checkpoints: bool = True,
+        check: bool = True,
+    ) -> RolloutResult:
         """Run ``num_frames - 1`` frames from ``state0`` (left unchanged); frame 0 = ``state0``."""
         if num_frames < 1:
             raise ValueError("num_frames must be >= 1")

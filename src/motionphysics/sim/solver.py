@@ -123,7 +123,12 @@ class Solver:
     def make_grid(self, requires_grad: bool = False) -> Grid:
         """Fresh grid scratch (zeroed); pass one per recorded substep to :meth:`step` under a tape."""
         wp = self.wp
-        v = wp.zeros(self.model.grid_dims, dtype=wp.vec3, device=self.model.device, requires_grad=requires_grad)
+        v = wp.zeros(
+            self.model.grid_dims,
+            dtype=wp.vec3,
+            device=self.model.device,
+            requires_grad=requires_grad,
+        )
         return Grid(velocity=v, requires_grad=requires_grad)
 
     def _region(self, state: State) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
@@ -132,8 +137,14 @@ class Solver:
         dims = np.asarray(self.model.grid_dims)
         if not (self.device.is_cpu and self.config.active_region):
             return (0, 0, 0), tuple(int(d) for d in dims)
-        wp.launch(_k._bounds, dim=1, inputs=[state.x, state.particle_count], outputs=[self._bounds],
-                  device=self.model.device, record_tape=False)
+        wp.launch(
+            _k._bounds,
+            dim=1,
+            inputs=[state.x, state.particle_count],
+            outputs=[self._bounds],
+            device=self.model.device,
+            record_tape=False,
+        )
         b = self._bounds.numpy().astype(np.float64)
         g = (b - np.asarray(self.model.domain_lo)) / self.model.dx
         if not np.all(np.isfinite(g)):
@@ -153,7 +164,9 @@ class Solver:
         for f in futures:
             f.result()
 
-    def _launch_chunks(self, kernel, make_inputs, outputs: list, shared: tuple[int, ...] = ()) -> None:
+    def _launch_chunks(
+        self, kernel, make_inputs, outputs: list, shared: tuple[int, ...] = ()
+    ) -> None:
         """Launch ``kernel`` over the particle chunks (threads on CPU), tape-aware.
 
         ``make_inputs(chunk, start)`` gives the inputs of a chunk. Without a tape, or with
@@ -168,11 +181,22 @@ class Solver:
         dev = self.model.device
         tape = _active_tape()
         if tape is None or self._pool is None:
-            self._chunked(lambda c, start, n: wp.launch(kernel, dim=n, inputs=make_inputs(c, start),
-                                                        outputs=outputs, device=dev))
+            self._chunked(
+                lambda c, start, n: wp.launch(
+                    kernel, dim=n, inputs=make_inputs(c, start), outputs=outputs, device=dev
+                )
+            )
             return
-        self._chunked(lambda c, start, n: wp.launch(kernel, dim=n, inputs=make_inputs(c, start),
-                                                    outputs=outputs, device=dev, record_tape=False))
+        self._chunked(
+            lambda c, start, n: wp.launch(
+                kernel,
+                dim=n,
+                inputs=make_inputs(c, start),
+                outputs=outputs,
+                device=dev,
+                record_tape=False,
+            )
+        )
         per_chunk = [make_inputs(c, start) for c, (start, _n) in enumerate(self._ranges)]
 
         def backward() -> None:
@@ -188,17 +212,35 @@ class Solver:
                         private[(c, i)] = g
                     adj_in.append(g)
                 adj_out = [tape.get_adjoint(o) for o in outputs]
-                wp.launch(kernel, dim=n, inputs=ins, outputs=outputs, adj_inputs=adj_in,
-                          adj_outputs=adj_out, device=dev, adjoint=True, record_tape=False)
+                wp.launch(
+                    kernel,
+                    dim=n,
+                    inputs=ins,
+                    outputs=outputs,
+                    adj_inputs=adj_in,
+                    adj_outputs=adj_out,
+                    device=dev,
+                    adjoint=True,
+                    record_tape=False,
+                )
 
             self._chunked(adj)
             for (_c, i), g in private.items():
                 total = per_chunk[0][i].grad
-                wp.launch(_k._add_vec3_3d, dim=total.shape, inputs=[g], outputs=[total], device=dev,
-                          record_tape=False)
+                wp.launch(
+                    _k._add_vec3_3d,
+                    dim=total.shape,
+                    inputs=[g],
+                    outputs=[total],
+                    device=dev,
+                    record_tape=False,
+                )
 
-        arrays = [a for a in (*[a for ins in per_chunk for a in ins], *outputs)
-                  if isinstance(a, wp.array) and a.grad is not None]
+        arrays = [
+            a
+            for a in (*[a for ins in per_chunk for a in ins], *outputs)
+            if isinstance(a, wp.array) and a.grad is not None
+        ]
         tape.record_func(backward=backward, arrays=list({id(a): a for a in arrays}.values()))
 
     def _region_grid(self, grid: Grid, shape: tuple[int, int, int]):
@@ -208,7 +250,9 @@ class Solver:
         mv = grid.mv
         if grid.requires_grad or mv is None or tuple(mv.shape) != full:
             # Under a tape every substep keeps its own array (the tape reads it in backward).
-            mv = wp.zeros(full, dtype=wp.vec4, device=self.model.device, requires_grad=grid.requires_grad)
+            mv = wp.zeros(
+                full, dtype=wp.vec4, device=self.model.device, requires_grad=grid.requires_grad
+            )
         else:
             mv.zero_()
         return mv
@@ -243,24 +287,56 @@ class Solver:
         grid.offset = off
         pr = m.params
 
-        affine = wp.empty(m.particle_count, dtype=wp.mat33, device=m.device,
-                          requires_grad=state_out.F.requires_grad)
+        affine = wp.empty(
+            m.particle_count,
+            dtype=wp.mat33,
+            device=m.device,
+            requires_grad=state_out.F.requires_grad,
+        )
 
         def stress_inputs(chunk: int, start: int) -> list:
             return [
-                state_in.C, state_in.F, state_in.ep, state_in.active,
-                m.volume, pr["density"], m.material_class,
-                pr["E"], pr["nu"], pr["tau_Y"], pr["eta"], pr["theta_fric"],
-                pr["mu"], pr["kappa"], pr["n"], m.dx, dt, start,
+                state_in.C,
+                state_in.F,
+                state_in.ep,
+                state_in.active,
+                m.volume,
+                pr["density"],
+                m.material_class,
+                pr["E"],
+                pr["nu"],
+                pr["tau_Y"],
+                pr["eta"],
+                pr["theta_fric"],
+                pr["mu"],
+                pr["kappa"],
+                pr["n"],
+                m.dx,
+                dt,
+                start,
             ]
 
         def p2g_inputs(chunk: int, start: int) -> list:
-            return [state_in.x, state_in.v, affine, state_in.active, m.volume, pr["density"],
-                    self._lo, m.dx, self._dims, start, chunk, wp_off]
+            return [
+                state_in.x,
+                state_in.v,
+                affine,
+                state_in.active,
+                m.volume,
+                pr["density"],
+                self._lo,
+                m.dx,
+                self._dims,
+                start,
+                chunk,
+                wp_off,
+            ]
 
         # chunks write disjoint particles and their own private grid: no shared adjoints
         for cid in self.classes:
-            self._launch_chunks(_k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine])
+            self._launch_chunks(
+                _k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine]
+            )
         self._p2g(p2g_inputs, affine, mv, state_in)
         wp.launch(
             _k._grid_update,
@@ -285,16 +361,29 @@ class Solver:
         density = self.model.params["density"]
         needed = [state_in.x, state_in.v, affine, density, mv]
         custom = tape is not None and all(a.grad is not None for a in needed)
-        self._chunked(lambda c, start, n: wp.launch(_k._p2g, dim=n, inputs=make_inputs(c, start), outputs=[mv],
-                                                    device=dev, record_tape=not custom))
+        self._chunked(
+            lambda c, start, n: wp.launch(
+                _k._p2g,
+                dim=n,
+                inputs=make_inputs(c, start),
+                outputs=[mv],
+                device=dev,
+                record_tape=not custom,
+            )
+        )
         if not custom:
             return
 
         def backward() -> None:
             def adj(c: int, start: int, n: int) -> None:
-                wp.launch(_k._p2g_adjoint, dim=n, inputs=[*make_inputs(c, start), mv.grad],
-                          outputs=[state_in.x.grad, state_in.v.grad, affine.grad, density.grad],
-                          device=dev, record_tape=False)
+                wp.launch(
+                    _k._p2g_adjoint,
+                    dim=n,
+                    inputs=[*make_inputs(c, start), mv.grad],
+                    outputs=[state_in.x.grad, state_in.v.grad, affine.grad, density.grad],
+                    device=dev,
+                    record_tape=False,
+                )
 
             self._chunked(adj)
 
@@ -309,31 +398,63 @@ class Solver:
         tape = _active_tape()
 
         def inputs(start: int) -> list:
-            return [state_in.x, grid.velocity, self._lo, m.dx, dt, self._dims, self._x_min, self._x_max, start]
+            return [
+                state_in.x,
+                grid.velocity,
+                self._lo,
+                m.dx,
+                dt,
+                self._dims,
+                self._x_min,
+                self._x_max,
+                start,
+            ]
 
         outputs = [state_out.x, state_out.v, state_out.C]
         needed = [state_in.x, grid.velocity, *outputs]
         custom = tape is not None and all(a.grad is not None for a in needed)
         # (with a tape but some arrays without gradients, Warp records its own adjoint)
-        self._chunked(lambda c, start, n: wp.launch(_k._g2p, dim=n, inputs=inputs(start), outputs=outputs,
-                                                    device=dev, record_tape=not custom))
+        self._chunked(
+            lambda c, start, n: wp.launch(
+                _k._g2p,
+                dim=n,
+                inputs=inputs(start),
+                outputs=outputs,
+                device=dev,
+                record_tape=not custom,
+            )
+        )
         if not custom:
             return
 
         def backward() -> None:
-            private = [grid.velocity.grad] if self.chunks == 1 else \
-                [wp.zeros_like(grid.velocity.grad) for _ in range(self.chunks)]
+            private = (
+                [grid.velocity.grad]
+                if self.chunks == 1
+                else [wp.zeros_like(grid.velocity.grad) for _ in range(self.chunks)]
+            )
 
             def adj(c: int, start: int, n: int) -> None:
-                wp.launch(_k._g2p_adjoint, dim=n, inputs=[*inputs(start), state_out.x.grad, state_out.v.grad,
-                                                          state_out.C.grad],
-                          outputs=[state_in.x.grad, private[c]], device=dev, record_tape=False)
+                wp.launch(
+                    _k._g2p_adjoint,
+                    dim=n,
+                    inputs=[*inputs(start), state_out.x.grad, state_out.v.grad, state_out.C.grad],
+                    outputs=[state_in.x.grad, private[c]],
+                    device=dev,
+                    record_tape=False,
+                )
 
             self._chunked(adj)
             if self.chunks > 1:
                 for g in private:
-                    wp.launch(_k._add_vec3_3d, dim=g.shape, inputs=[g], outputs=[grid.velocity.grad],
-                              device=dev, record_tape=False)
+                    wp.launch(
+                        _k._add_vec3_3d,
+                        dim=g.shape,
+                        inputs=[g],
+                        outputs=[grid.velocity.grad],
+                        device=dev,
+                        record_tape=False,
+                    )
 
         tape.record_func(backward=backward, arrays=needed)
 
@@ -341,8 +462,13 @@ class Solver:
         """Largest particle speed [m/s]; inf when any velocity is NaN/Inf."""
         wp = self.wp
         out = wp.zeros(1, dtype=float, device=self.model.device)
-        wp.launch(_k._max_speed_sq, dim=state.particle_count, inputs=[state.v, out],
-                  device=self.model.device, record_tape=False)
+        wp.launch(
+            _k._max_speed_sq,
+            dim=state.particle_count,
+            inputs=[state.v, out],
+            device=self.model.device,
+            record_tape=False,
+        )
         s = float(out.numpy()[0])
         return math.inf if s >= 1.0e30 else math.sqrt(s)
 
@@ -362,7 +488,11 @@ def wave_speeds(values: dict[str, Any]) -> np.ndarray:
 
     count = _count(values)
     ids, p = material_arrays(values, count)
-    E, nu, rho = p["E"].astype(np.float64), p["nu"].astype(np.float64), p["density"].astype(np.float64)
+    E, nu, rho = (
+        p["E"].astype(np.float64),
+        p["nu"].astype(np.float64),
+        p["density"].astype(np.float64),
+    )
     lam_2mu = E * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))
     modulus = np.where(ids <= 4, lam_2mu, 0.0)
     modulus = np.where(ids == 5, p["kappa"], modulus)
@@ -397,7 +527,9 @@ def stable_dt(values: dict[str, Any], dx: float, cfl: float = DEFAULT_CFL) -> fl
     return dt
 
 
-def auto_substeps(values: dict[str, Any], dx: float, frame_dt: float, cfl: float = DEFAULT_CFL) -> int:
+def auto_substeps(
+    values: dict[str, Any], dx: float, frame_dt: float, cfl: float = DEFAULT_CFL
+) -> int:
     """Smallest substep count per frame whose dt = frame_dt / n satisfies :func:`stable_dt`.
 
     ``values``: sim-unit material dict (``'class'`` + parameters, scalars or per particle).
@@ -412,7 +544,10 @@ def cfl_number(values_or_model: Any, dx: float, dt: float) -> float:
     """max wave speed * dt / dx for a material dict or a :class:`Model`."""
     if isinstance(values_or_model, Model):
         mm = values_or_model
-        values = {"class": mm.material_class.numpy(), **{k: a.numpy() for k, a in mm.params.items()}}
+        values = {
+            "class": mm.material_class.numpy(),
+            **{k: a.numpy() for k, a in mm.params.items()},
+        }
     else:
         values = values_or_model
     return float(np.max(wave_speeds(values))) * dt / dx
