@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 export MOTIONPHYSICS_CACHE ?= $(CURDIR)/.cache
 OUT ?= runs/demo
 
-.PHONY: demo test test-slow test-all lint bench clean
+.PHONY: demo test test-slow test-all lint bench peers clean
 
 $(BIN)/motionphysics: pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -32,8 +32,15 @@ lint: $(BIN)/motionphysics
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
 
+# Speed and quality benchmarks (minutes; not part of the tests). The MPM comparison
+# needs the peers' separate environment: `bash benchmarks/setup_peers.sh` once.
 bench: $(BIN)/motionphysics
-	$(BIN)/python benchmarks/run_all.py
+	$(BIN)/python benchmarks/bench_render.py --repeats 5
+	$(BIN)/python benchmarks/bench_mpm.py --particles 20000 --substeps 100 --repeats 5
+	$(BIN)/python benchmarks/bench_sysid.py --size fast
+
+peers:
+	bash benchmarks/setup_peers.sh
 
 clean:
 	rm -rf $(VENV) .cache runs

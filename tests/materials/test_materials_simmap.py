@@ -45,7 +45,7 @@ def material_and_ctx(draw):
     rho = _value(cls, "density", draw(u))
     dx, dt = draw(st.sampled_from(GRIDS))
     length = draw(st.floats(0.05, 2.0))
-    rule = draw(st.sampled_from(["strain", "impact"]))
+    rule = draw(st.sampled_from(["auto", "strain", "impact"]))
     return MaterialParams(cls, rho, values), SimContext(dx, dt, rho, length, yield_rule=rule)
 
 
@@ -101,10 +101,34 @@ def test_identity_when_everything_is_stable():
 
 
 @pytest.mark.parametrize("dx, dt", GRIDS)
-def test_steel_keeps_its_yield_strain(dx, dt):
+def test_strain_rule_keeps_the_yield_strain(dx, dt):
     p, _ = validate("metal", {"E": 2.0e11, "nu": 0.3, "tau_Y": 2.5e8}, 7850)
-    sim = physical_to_sim(p, SimContext(dx, dt, 7850.0, 0.3))
+    sim = physical_to_sim(p, SimContext(dx, dt, 7850.0, 0.3, yield_rule="strain"))
     assert sim["tau_Y"] / sim["E"] == pytest.approx(2.5e8 / 2.0e11, rel=1e-12)
+
+
+@pytest.mark.parametrize("dx, dt", GRIDS)
+def test_default_rule_metal_keeps_impact_ratio_clay_and_foam_keep_yield_strain(dx, dt):
+    """yield_rule='auto' (the default): a steel object dropped from a 0.75 m table
+    rebounds in the simulation as in reality; plasticine and foam keep tau_Y / E."""
+    v = math.sqrt(2 * 9.8 * 0.75)
+    steel, _ = validate("metal", {"E": 2.0e11, "nu": 0.3, "tau_Y": 2.5e8}, 7850)
+    ctx = SimContext(dx, dt, 7850.0, 0.3)
+    assert ctx.yield_rule == "auto"
+    sim = physical_to_sim(steel, ctx)
+    phys = impact_to_yield(dict(steel.values, density=7850.0), v)
+    assert phys < 1.0  # real steel does not dent (0.70)
+    assert impact_to_yield(sim, v) == pytest.approx(phys, rel=1e-12)
+    # The strain rule would dent it wherever E is compressed (72x at grid 64, dt/512).
+    strain = physical_to_sim(steel, SimContext(dx, dt, 7850.0, 0.3, yield_rule="strain"))
+    if sim["E"] < 0.5 * 2.0e11:
+        assert impact_to_yield(strain, v) > 1.0
+    for cls, rho, vals in (
+        ("plasticine", 1500.0, {"E": 2.5e6, "nu": 0.4, "tau_Y": 1e4}),
+        ("foam", 50.0, {"E": 1e5, "nu": 0.2, "tau_Y": 1e4, "eta": 1.0}),
+    ):
+        s = physical_to_sim(MaterialParams(cls, rho, vals), SimContext(dx, dt, rho, 0.3))
+        assert s["tau_Y"] / s["E"] == pytest.approx(vals["tau_Y"] / vals["E"], rel=1e-12), cls
 
 
 def test_impact_rule_keeps_impact_to_yield_ratio():
@@ -203,6 +227,7 @@ def test_bad_context_rejected():
         SimContext(0.0, 1e-3, 1000.0, 1.0)
     with pytest.raises(ValueError):
         SimContext(0.01, 1e-3, 1000.0, 1.0, yield_rule="nope")
+    assert SimContext(0.01, 1e-3, 1000.0, 1.0, yield_rule="impact").yield_rule == "impact"
     assert DENSITY.low > 0
 
 

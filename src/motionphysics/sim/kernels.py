@@ -23,7 +23,12 @@ nodes the particles' stencils touch) only.
 from __future__ import annotations
 
 from motionphysics.runtime import init_warp
-from motionphysics.sim.constitutive import MODELS
+from motionphysics.sim.constitutive import (
+    MODELS,
+    _corotated_tau,
+    _polar_rotation,
+    lame,
+)
 
 wp = init_warp()
 
@@ -115,6 +120,82 @@ def _make_stress_kernel(cls_id: int):
 
 STRESS_KERNELS = tuple(_make_stress_kernel(c) for c in range(len(MODELS)))
 """One stress kernel per material class (``STRESS_KERNELS[class_id]``), same arguments."""
+
+ELASTIC_CLASS = 0
+"""Class id of ``MODELS[0]`` = ``constitutive.fixed_corotated`` (identity return map)."""
+
+
+@wp.kernel
+def _stress_elastic_taped(
+    C: wp.array(dtype=wp.mat33),
+    F: wp.array(dtype=wp.mat33),
+    ep: wp.array(dtype=float),
+    active: wp.array(dtype=float),
+    volume: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+    material_class: wp.array(dtype=wp.int32),
+    E: wp.array(dtype=float),
+    nu: wp.array(dtype=float),
+    dx: float,
+    dt: float,
+    p_offset: int,
+    F_out: wp.array(dtype=wp.mat33),
+    ep_out: wp.array(dtype=float),
+    affine_out: wp.array(dtype=wp.mat33),
+    R_out: wp.array(dtype=wp.mat33),
+):
+    # STRESS_KERNELS[ELASTIC_CLASS] (fixed_corotated: F_e = F_trial, tau from the polar
+    # rotation R of F_trial) that also stores R, for the recorded (taped) forward pass:
+    # the adjoint (_stress_elastic_replay) then needs no SVD.
+    p = wp.tid() + p_offset
+    if material_class[p] == ELASTIC_CLASS:
+        inv_dx = 1.0 / dx
+        Cp = C[p]
+        F_trial = (wp.identity(n=3, dtype=float) + dt * Cp) * F[p]
+        R = _polar_rotation(F_trial)
+        mu, lam = lame(E[p], nu[p])
+        tau = _corotated_tau(F_trial, R, mu, lam)
+        F_out[p] = F_trial
+        ep_out[p] = ep[p]
+        R_out[p] = R
+        vol = volume[p] * active[p]
+        affine_out[p] = (-dt * vol * 4.0 * inv_dx * inv_dx) * tau + (density[p] * vol) * Cp
+
+
+@wp.kernel
+def _stress_elastic_replay(
+    C: wp.array(dtype=wp.mat33),
+    F: wp.array(dtype=wp.mat33),
+    ep: wp.array(dtype=float),
+    active: wp.array(dtype=float),
+    volume: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+    material_class: wp.array(dtype=wp.int32),
+    E: wp.array(dtype=float),
+    nu: wp.array(dtype=float),
+    dx: float,
+    dt: float,
+    p_offset: int,
+    R: wp.array(dtype=wp.mat33),
+    F_out: wp.array(dtype=wp.mat33),
+    ep_out: wp.array(dtype=float),
+    affine_out: wp.array(dtype=wp.mat33),
+):
+    # Launched only as an adjoint (adjoint=True): _stress_elastic_taped with the stored
+    # rotation R as an input. Warp's generated adjoint of this SVD-free body uses the
+    # analytic adjoint of constitutive._corotated_tau (dR/dF included), so the stress
+    # backward costs no SVD (Warp's adjoint of the full model replays svd3 repeatedly).
+    p = wp.tid() + p_offset
+    if material_class[p] == ELASTIC_CLASS:
+        inv_dx = 1.0 / dx
+        Cp = C[p]
+        F_trial = (wp.identity(n=3, dtype=float) + dt * Cp) * F[p]
+        mu, lam = lame(E[p], nu[p])
+        tau = _corotated_tau(F_trial, R[p], mu, lam)
+        F_out[p] = F_trial
+        ep_out[p] = ep[p]
+        vol = volume[p] * active[p]
+        affine_out[p] = (-dt * vol * 4.0 * inv_dx * inv_dx) * tau + (density[p] * vol) * Cp
 
 
 @wp.kernel

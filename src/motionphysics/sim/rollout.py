@@ -136,7 +136,8 @@ class Rollout:
     def _span_bytes(self, n: int, k0: int) -> int:
         """Estimated memory [bytes] of recording substeps k0 .. k0+n-1 on one tape: per substep
         a full node-velocity grid, the region-sized vec4 grids (the particles' current region,
-        x1.5 for growth), the state and the affine matrices, values and adjoints."""
+        x1.5 for growth), the state and the affine matrices, values and adjoints, and the
+        stored rotations of the elastic stress."""
         m = self.model
         nodes = int(np.prod(m.grid_dims))
         region = nodes
@@ -146,7 +147,8 @@ class Rollout:
             region = min(nodes, int(1.5 * np.prod(shape)))
         state = m.particle_count * (12 + 12 + 36 + 36 + 4 + 4 + 36)
         grid = nodes * 12 + region * 16 * self.solver.chunks
-        return 2 * n * (grid + state)
+        rotation = m.particle_count * 36  # elastic stress: the stored polar rotations
+        return n * (2 * (grid + state) + rotation)
 
     def _backward_span(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
         """Propagate the adjoint ``adj`` of the state at substep k1 to substep k0 (in place).

@@ -76,6 +76,9 @@ class Grid:
     mv: Any = None
     offset: tuple[int, int, int] = (0, 0, 0)
     requires_grad: bool = False
+    rotation: Any = None
+    """Recorded substeps only: polar rotation of each elastic particle's trial F (P,) mat33,
+    kept for the stress adjoint."""
 
     def zero_grad(self) -> None:
         for a in (self.velocity, self.mv):
@@ -86,7 +89,10 @@ class Grid:
         n = self.velocity.capacity
         if self.mv is not None:
             n += self.mv.capacity
-        return n * (2 if self.requires_grad else 1)
+        n *= 2 if self.requires_grad else 1
+        if self.rotation is not None:
+            n += self.rotation.capacity
+        return n
 
 
 class Solver:
@@ -334,6 +340,10 @@ class Solver:
 
         # chunks write disjoint particles and their own private grid: no shared adjoints
         for cid in self.classes:
+            if cid == _k.ELASTIC_CLASS and self._elastic_taped(
+                stress_inputs, state_in, state_out, affine, grid
+            ):
+                continue
             self._launch_chunks(
                 _k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine]
             )
@@ -346,11 +356,68 @@ class Solver:
             device=m.device,
         )
         if m.boundary is not None:
-            m.boundary.apply_grid(m, grid.velocity, t, substep, dt)
+            # only the active region is read by G2P: the hooks process just those nodes
+            m.boundary.apply_grid(m, grid.velocity, t, substep, dt, region=(off, shape))
 
         self._g2p(state_in, grid, state_out, dt)
         if m.boundary is not None:
             m.boundary.apply_post_g2p(m, state_in, state_out, t, substep, dt)
+
+    def _elastic_taped(self, make_inputs, state_in: State, state_out: State, affine, grid) -> bool:
+        """Under a tape: the elastic stress with a hand-recorded adjoint (False: not taped).
+
+        The recorded forward (``_stress_elastic_taped``) stores the polar rotation R of each
+        particle's trial F in ``grid.rotation``; the backward launches the adjoint of
+        ``_stress_elastic_replay`` (R read back, no SVD) on the chunks' threads.
+        """
+        wp = self.wp
+        m = self.model
+        dev = m.device
+        tape = _active_tape()
+        outputs = [state_out.F, state_out.ep, affine]
+        needed = [state_in.C, state_in.F, state_in.ep, *outputs]
+        if tape is None or not all(a.grad is not None for a in needed):
+            return False
+        R = grid.rotation
+        if R is None or R.shape[0] != m.particle_count:
+            R = grid.rotation = wp.empty(m.particle_count, dtype=wp.mat33, device=dev)
+
+        def inputs(c: int, start: int) -> list:
+            full = make_inputs(c, start)
+            return [*full[:9], *full[15:]]  # C F ep active volume density class E nu; dx dt start
+
+        self._chunked(
+            lambda c, start, n: wp.launch(
+                _k._stress_elastic_taped,
+                dim=n,
+                inputs=inputs(c, start),
+                outputs=[*outputs, R],
+                device=dev,
+                record_tape=False,
+            )
+        )
+        per_chunk = [inputs(c, start) for c, (start, _n) in enumerate(self._ranges)]
+
+        def backward() -> None:
+            def adj(c: int, start: int, n: int) -> None:
+                ins = [*per_chunk[c], R]
+                wp.launch(
+                    _k._stress_elastic_replay,
+                    dim=n,
+                    inputs=ins,
+                    outputs=outputs,
+                    adj_inputs=[tape.get_adjoint(a) for a in ins],
+                    adj_outputs=[tape.get_adjoint(o) for o in outputs],
+                    device=dev,
+                    adjoint=True,
+                    record_tape=False,
+                )
+
+            self._chunked(adj)
+
+        arrays = [a for a in (*per_chunk[0], *outputs) if isinstance(a, wp.array)]
+        tape.record_func(backward=backward, arrays=[a for a in arrays if a.grad is not None])
+        return True
 
     def _p2g(self, make_inputs, affine, mv, state_in: State) -> None:
         """P2G scatter over the chunks; under a tape, records the hand-written adjoint
