@@ -2,13 +2,24 @@
 
 The prompts go through the real path (kb estimate -> config merge and clamps -> sim map
 -> simulate); the statistics are those of metrics.json (final height over initial
-height, spread ratio, rebound ratio).
+height, spread ratio, rebound ratio, smallest height during the run).
+
+One shared scene: a 10 cm ball whose lowest point starts 3 cm above a frictional floor.
+At that size a yield-stress paste (toothpaste, shear yield 200 Pa: mound height
+tau_Y / (rho g) = 1.6 cm) holds together while water runs out, and the short drop
+(0.77 m/s) keeps the paste from being splashed flat; rubber and steel still bounce.
+Measured (grid 16, 800 particles; 2026-11-22):
+
+    elastic     height 0.965 spread 1.014 rebound 0.630 min height 0.878
+    metal       height 1.001 spread 1.000 rebound 0.121 min height 1.000
+    water       height 0.155 spread 2.694 rebound 0.011
+    sand        height 0.261 spread 2.144 rebound 0.000
+    toothpaste  height 0.349 spread 1.687 rebound 0.000
 """
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from motionphysics.config import config_from_dict
 from motionphysics.metrics.physical import physical_metrics
@@ -24,9 +35,9 @@ PROMPTS = {
 SCENE = {
     "scene": {
         "source": "builtin:sphere",
-        "scale": 0.3,
-        "translate": [0, 0, 0.3],
-        "max_particles": 1000,
+        "scale": 0.1,
+        "translate": [0, 0, 0.08],
+        "max_particles": 800,
     },
     "sim": {"grid": 16, "frames": 16, "frame_dt": 0.04, "substeps": "auto"},
     "boundary_conditions": [
@@ -42,14 +53,17 @@ SCENE = {
 }
 
 
-def _motion(names, scale: float = 0.3):
+def _motion(names, scale: float = 0.1, lift: float = 0.03):
     from motionphysics.init import EstimateOptions, estimate_many
     from motionphysics.pipeline import _map_to_sim, _simulate, resolve_material
     from motionphysics.progress import Progress
     from motionphysics.scene import load_scene
     from motionphysics.scene.prepare import prepare
 
-    data = {**SCENE, "scene": {**SCENE["scene"], "scale": scale, "translate": [0, 0, scale]}}
+    data = {
+        **SCENE,
+        "scene": {**SCENE["scene"], "scale": scale, "translate": [0, 0, scale / 2 + lift]},
+    }
     cfg = config_from_dict(data)
     sim_scene = prepare(
         load_scene(cfg.scene.source), cfg.scene, cfg.sim, list(cfg.boundary_conditions)
@@ -75,21 +89,23 @@ def _check(out):
     for name, (cls, m) in out.items():
         print(
             f"{name:10s} {cls:13s} height {m['final_height_ratio']:.3f} spread {m['spread_ratio']:.3f} "
-            f"rebound {m['rebound_ratio']:.3f}"
+            f"rebound {m['rebound_ratio']:.3f} min height {m['min_height_ratio']:.3f}"
         )
     if "elastic" in out:
         cls, m = out["elastic"]
         assert cls == "elastic"
         assert m["final_height_ratio"] > 0.85 and m["spread_ratio"] < 1.1  # keeps its shape
-        assert m["rebound_ratio"] > 0.3  # and bounces
+        assert m["rebound_ratio"] > 0.3  # and bounces (measured 0.63)
+        assert m["min_height_ratio"] < 0.95  # squashing visibly on impact (measured 0.88)
     if "metal" in out:
         cls, m = out["metal"]
         assert cls == "metal"
         assert m["final_height_ratio"] > 0.85 and m["spread_ratio"] < 1.1
-        assert (
-            m["rebound_ratio"]
-            < out.get("elastic", (None, {"rebound_ratio": 1.0}))[1]["rebound_ratio"] - 0.2
-        )
+        # Steel does not squash on impact (measured 1.000; the sim map keeps its impact
+        # to yield ratio, 0.7 from this height): 2 % is a third of a cell at grid 16.
+        assert m["min_height_ratio"] > 0.98
+        if "elastic" in out:  # rubber squashes where steel does not
+            assert out["elastic"][1]["min_height_ratio"] < m["min_height_ratio"] - 0.05
     for name in ("water", "sand", "toothpaste"):
         if name in out:
             _, m = out[name]
@@ -100,24 +116,21 @@ def _check(out):
     if "water" in out and "sand" in out:
         # water runs out further and thinner than sand, which stops at its friction angle
         assert out["water"][1]["spread_ratio"] > out["sand"][1]["spread_ratio"] + 0.2
+    if "water" in out and "toothpaste" in out:
+        # the paste's yield stress holds it together: it piles up where water runs out
+        # (measured spread 1.69 vs 2.69, height 0.35 vs 0.16)
+        w, t = out["water"][1], out["toothpaste"][1]
+        assert w["spread_ratio"] > t["spread_ratio"] + 0.2
+        assert t["final_height_ratio"] > w["final_height_ratio"] + 0.1
+    if "sand" in out and "toothpaste" in out:
+        # cohesionless sand scatters on impact, the cohesive paste does not
+        # (measured spread 2.14 vs 1.69)
+        assert out["sand"][1]["spread_ratio"] > out["toothpaste"][1]["spread_ratio"] + 0.2
     assert out.get("water", ("newtonian",))[0] == "newtonian"
     assert out.get("sand", ("sand",))[0] == "sand"
     assert out.get("toothpaste", ("non_newtonian",))[0] == "non_newtonian"
 
 
-def test_solids_and_fluids_separate():
-    _check(_motion(["elastic", "water", "sand"]))
-
-
-@pytest.mark.slow
 def test_five_prompts_separate():
+    """Elastic, metal, water, sand and toothpaste on one scene: every pair differs."""
     _check(_motion(list(PROMPTS)))
-
-
-@pytest.mark.slow
-def test_toothpaste_holds_together_more_than_water():
-    """At toothpaste scale (an 8 cm blob) its yield stress keeps it from running out as far
-    as water. (A 30 cm blob of either flattens to the grid's resolution: both spread alike.)"""
-    out = _motion(["water", "toothpaste"], scale=0.08)
-    _check(out)
-    assert out["water"][1]["spread_ratio"] > out["toothpaste"][1]["spread_ratio"] + 0.2

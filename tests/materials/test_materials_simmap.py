@@ -13,6 +13,7 @@ from motionphysics.materials.catalog import DENSITY, MATERIALS, MaterialParams, 
 from motionphysics.materials.simmap import (
     SimContext,
     impact_to_yield,
+    nn_consistency_factor,
     p_wave_speed,
     physical_to_sim,
     sim_to_physical,
@@ -58,9 +59,11 @@ def test_round_trip_and_stability(pc):
     assert p_wave_speed(params.cls, sim) <= ctx.c_max * (1 + 1e-9)
     # The viscosity of the explicit scheme: newtonian `mu`, non-Newtonian `eta` (its
     # Herschel-Bulkley consistency; its sim `mu` is the unyielded shear modulus).
-    viscosity = {"newtonian": "mu", "non_newtonian": "eta"}.get(params.cls)
-    if viscosity:
-        assert sim[viscosity] <= ctx.mu_max * (1 + 1e-9)
+    if params.cls == "newtonian":
+        assert sim["mu"] <= ctx.mu_max * (1 + 1e-9)
+    if params.cls == "non_newtonian":  # the solver's eta is 2^((n+1)/2) x the consistency K
+        K = sim["eta"] / nn_consistency_factor(sim.get("n", 1.0))
+        assert K <= ctx.mu_max * (1 + 1e-9)
     if "nu" in sim:
         assert sim["nu"] <= 0.49 + 1e-12
     assert sim["density"] == params.density
@@ -244,7 +247,7 @@ def test_dicts_with_a_class_key():
     nn = physical_to_sim(
         {"mu": 5.0, "kappa": 2e9, "tau_Y": 100.0, "eta": 0.5}, ctx, cls="non_newtonian"
     )
-    assert "n" not in nn and nn["tau_Y"] == 100.0
+    assert "n" not in nn and nn["tau_Y"] == pytest.approx(100.0 * math.sqrt(3.0), rel=1e-12)
 
 
 def test_zero_gravity_keeps_every_map_finite_and_stable():
@@ -265,9 +268,12 @@ def test_non_newtonian_keys_follow_the_herschel_bulkley_model():
     ctx = SimContext(1 / 64, 0.04 / 64, 1300.0, 0.3)
     phys = {"mu": 2.0, "kappa": 2e9, "tau_Y": 150.0, "eta": 0.4, "n": 0.6}
     sim = physical_to_sim(phys, ctx, cls="non_newtonian")
-    assert sim["eta"] == pytest.approx(2.0)  # below the viscosity knee: passes through
+    # below the viscosity knee K passes through; the solver's eta is K 2^((n+1)/2)
+    assert sim["eta"] == pytest.approx(2.0 * 2.0 ** (1.6 / 2.0), rel=1e-12)
     assert sim["mu"] == pytest.approx(0.4 * 0.375 * sim["kappa"], rel=1e-12)
-    assert sim["tau_Y"] == 150.0 and sim["n"] == 0.6
+    # catalogue tau_Y = shear yield stress (rheometer); solver tau_Y = uniaxial von
+    # Mises yield stress, whose shear yield is tau_Y / sqrt(3).
+    assert sim["tau_Y"] == pytest.approx(150.0 * math.sqrt(3.0), rel=1e-12) and sim["n"] == 0.6
     # A stiffer unyielded paste (larger eta) raises the shear modulus, nothing else.
     sim2 = physical_to_sim({**phys, "eta": 0.8}, ctx, cls="non_newtonian")
     assert sim2["mu"] > sim["mu"] and sim2["eta"] == sim["eta"]

@@ -67,14 +67,22 @@ continuous, invertible, and identity when the whole range is already stable):
         ``log mu`` is mapped affinely from ``[log knee, log hi]`` onto
         ``[log knee, log cap_mu]`` (water and oils pass through; honey-like
         pastes are compressed at coarse time steps).
-``eta``, ``theta_fric`` (degrees), ``n``, ``density``, and the non-Newtonian
-        ``tau_Y`` (a yield stress that sets a mound height ``tau_Y/(rho g)``
-        against gravity, which is not compressed) pass through.
+``eta``, ``theta_fric`` (degrees), ``n`` and ``density`` pass through.
+``tau_Y`` (non-Newtonian) is not compressed (it sets a mound height ``tau_Y/(rho g)``
+        against gravity, which is not compressed either) but converted: the
+        catalogue's value is the rheometer's SHEAR yield stress (toothpaste ~200 Pa,
+        ketchup ~20 Pa), while the solver's ``tau_Y`` is the UNIAXIAL von Mises
+        yield stress (``sim.constitutive.herschel_bulkley``: shear yield =
+        ``tau_Y / sqrt(3)``), so ``tau_Y_sim = sqrt(3) tau_Y``. Passed through
+        unchanged, a paste yielded at 58 % of its stress and a 10 cm toothpaste blob
+        slumped like dry sand (final height 0.23 vs sand 0.26; with the factor 0.35).
 
 Non-Newtonian (Herschel-Bulkley) simulation keys follow the constitutive model's
 arguments (``sim.constitutive.herschel_bulkley``), not the catalogue's names:
-``eta`` (sim) = the flow-rule consistency ``K`` [Pa s^n] = the catalogue's ``mu``
-(a viscosity, paper table 1e-3..1e3 Pa s), mapped with the viscosity rule above;
+``eta`` (sim) = ``2^((n+1)/2) K`` where the consistency ``K`` [Pa s^n] is the
+catalogue's ``mu`` (a viscosity, paper table 1e-3..1e3 Pa s) mapped with the viscosity
+rule above; the factor turns the solver's strain-space flow rule into the rheological
+``tau = tau_y + K gamma_dot^n`` in simple shear (:func:`nn_consistency_factor`);
 ``mu`` (sim) = the elastic shear modulus [Pa] of the unyielded paste =
 ``eta * NN_SHEAR_FRACTION * kappa_sim``: the paper's unitless "plastic viscosity"
 ``eta`` in [0.1, 1] is read as the stiffness of the unyielded state relative to
@@ -102,6 +110,7 @@ from typing import Any, Literal
 from motionphysics.materials.catalog import MATERIALS, MaterialParams, normalise_class
 
 __all__ = [
+    "nn_consistency_factor",
     "SimContext",
     "physical_to_sim",
     "sim_to_physical",
@@ -111,6 +120,7 @@ __all__ = [
     "yield_rule_for",
     "YIELD_RULES",
     "NU_SIM_MAX",
+    "NN_YIELD_FACTOR",
     "SAND_NU",
 ]
 
@@ -129,8 +139,23 @@ MU_KNEE_FACTOR = 10.0
 """Viscosities below (viscosity limit / this) pass through unchanged."""
 SAND_NU = 0.3
 """Poisson's ratio of sand's derived elastic predictor."""
+NN_YIELD_FACTOR = math.sqrt(3.0)
+"""Non-Newtonian: solver (uniaxial von Mises) yield stress over the catalogue's shear yield stress."""
 NN_SHEAR_FRACTION = 0.375
 """Non-Newtonian: shear modulus of the unyielded paste at eta = 1, as a fraction of kappa_sim."""
+
+
+
+def nn_consistency_factor(n):
+    """Solver ``eta`` over the rheological consistency ``K`` of a Herschel-Bulkley paste.
+
+    ``sim.constitutive.herschel_bulkley`` writes its flow rule in deviatoric strain space;
+    in steady simple shear it reads ``tau = tau_Y/sqrt(3) + eta 2^(-(n+1)/2) gamma_dot^n``
+    (its docstring), so the catalogue's ``mu`` (= K, as a rheometer measures it) enters
+    the solver as ``eta = K 2^((n+1)/2)`` (2 K for Bingham, n = 1). Float or tensor ``n``.
+    """
+    return 2.0 ** ((n + 1.0) / 2.0)
+
 
 YIELD_RULES = ("auto", "strain", "impact")
 """Values of ``SimContext.yield_rule``."""
@@ -407,9 +432,9 @@ def physical_to_sim(
     else:  # non_newtonian: keys of the Herschel-Bulkley model (module docstring)
         kappa_sim = values["kappa"] * _kappa_scale(cls, ctx)
         out["kappa"] = kappa_sim
-        out["eta"] = _mu_to_sim(cls, values["mu"], ctx)
+        out["eta"] = _mu_to_sim(cls, values["mu"], ctx) * nn_consistency_factor(values.get("n", 1.0))
         out["mu"] = values["eta"] * NN_SHEAR_FRACTION * kappa_sim
-        out["tau_Y"] = values["tau_Y"]
+        out["tau_Y"] = values["tau_Y"] * NN_YIELD_FACTOR
         if "n" in values:
             out["n"] = values["n"]
     if density is not None:
@@ -446,10 +471,10 @@ def sim_to_physical(
         out["mu"] = _mu_from_sim(cls, s["mu"], ctx)
         out["kappa"] = s["kappa"] / _kappa_scale(cls, ctx)
     else:
-        out["mu"] = _mu_from_sim(cls, s["eta"], ctx)
+        out["mu"] = _mu_from_sim(cls, s["eta"] / nn_consistency_factor(s.get("n", 1.0)), ctx)
         out["kappa"] = s["kappa"] / _kappa_scale(cls, ctx)
         out["eta"] = s["mu"] / (NN_SHEAR_FRACTION * s["kappa"])
-        out["tau_Y"] = s["tau_Y"]
+        out["tau_Y"] = s["tau_Y"] / NN_YIELD_FACTOR
         if "n" in s:
             out["n"] = s["n"]
     return MaterialParams(cls, density, out)
