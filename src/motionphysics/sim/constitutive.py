@@ -306,8 +306,14 @@ def herschel_bulkley(
 
     mu is the shear modulus and kappa the bulk modulus [Pa] of the elastic part
     (lambda = kappa - 2 mu / 3, clamped at 0), tau_Y the yield stress [Pa], eta the
-    plastic viscosity, n the power-law index (n = 1: Bingham, the paper's formula
-    s = s_trial - (||s_trial|| - sqrt(2/3) tau_Y)/(1 + eta/(2 mu dt)) s_trial/||s_trial||).
+    plastic viscosity, n the power-law index. Yield surface: von Mises with tau_Y the
+    UNIAXIAL (tensile) yield stress, as for metal and foam: ||s|| = sqrt(2/3) tau_Y, so
+    the shear yield stress of rheology (simple shear, tau = s_xy) is tau_Y / sqrt(3).
+    In steady simple shear at rate gamma_dot (||s|| = sqrt(2) tau, x / dt = gamma_dot /
+    sqrt(2)) the flow rule below reads tau = tau_Y / sqrt(3) + K gamma_dot^n with the
+    consistency K = eta 2^(-(n + 1) / 2) [Pa s^n] (K = eta / 2 for n = 1).
+    The paper's Bingham formula (n = 1):
+    s = s_trial - (||s_trial|| - sqrt(2/3) tau_Y)/(1 + eta/(2 mu dt)) s_trial/||s_trial||.
     In strain space the plastic increment x = dgamma solves
     ||s_trial|| - sqrt(2/3) tau_Y - 2 mu x - eta (x/dt)^n = 0; closed form for n = 1,
     otherwise 8 safeguarded Newton steps from the Bingham value.
