@@ -12,8 +12,11 @@ arrays of each recorded substep intact until its backward pass: pass ``grid=`` (
 :class:`Grid` per recorded substep, what :mod:`.rollout` does). The transfers P2G and
 G2P record hand-written adjoint kernels (``kernels._p2g_adjoint`` / ``_g2p_adjoint``,
 checked against finite differences in tests/sim/test_kernels.py) because Warp's
-generated adjoints of the 27-node stencil loops cost 2-6x their forward; the
-constitutive kernel uses Warp's generated adjoint (SVD included).
+generated adjoints of the 27-node stencil loops cost 2-6x their forward. The elastic
+(fixed corotated) stress runs ``kernels._stress_elastic`` (Newton polar rotation, 3-4x
+faster than the SVD) and, under a tape, stores the rotations for the SVD-free
+``_stress_elastic_adjoint``; the other classes' stress kernels use Warp's generated adjoint
+(SVD included).
 
 On CPU, Warp runs a launch on one thread; with ``SolverConfig.threads = 2`` the
 particles are split in two chunks launched from Python threads (ctypes releases the
@@ -79,9 +82,11 @@ class Grid:
     rotation: Any = None
     """Recorded substeps only: polar rotation of each elastic particle's trial F (P,) mat33,
     kept for the stress adjoint."""
+    affine: Any = None
+    """Recorded substeps only: the substep's affine matrices (P,) mat33 (see Solver.step)."""
 
     def zero_grad(self) -> None:
-        for a in (self.velocity, self.mv):
+        for a in (self.velocity, self.mv, self.affine):
             if a is not None and a.grad is not None:
                 a.grad.zero_()
 
@@ -90,6 +95,8 @@ class Grid:
         if self.mv is not None:
             n += self.mv.capacity
         n *= 2 if self.requires_grad else 1
+        if self.affine is not None:
+            n += self.affine.capacity * (2 if self.affine.requires_grad else 1)
         if self.rotation is not None:
             n += self.rotation.capacity
         return n
@@ -123,6 +130,9 @@ class Solver:
         self._x_max = wp.vec3(*(lo + (np.asarray(dims) - 3.0) * model.dx))
         self._gravity = wp.vec3(*model.gravity)
         self._bounds = wp.zeros(2, dtype=wp.vec3, device=model.device)
+        self._R_dummy = None  # R output of the elastic stress when nothing records it
+        self._private: list = []  # the chunks' region-sized G2P adjoint buffers
+        self.affine = None  # affine matrices of untaped substeps (see _affine)
         self.classes = tuple(int(c) for c in np.unique(model.material_class.numpy()))
         """Material class ids present (one stress kernel launch each)."""
 
@@ -254,13 +264,15 @@ class Solver:
         wp = self.wp
         full = (self.chunks, *shape)
         mv = grid.mv
-        if grid.requires_grad or mv is None or tuple(mv.shape) != full:
-            # Under a tape every substep keeps its own array (the tape reads it in backward).
+        if mv is None or tuple(mv.shape) != full or mv.requires_grad != grid.requires_grad:
+            # (under a tape every recorded substep has its own Grid, so its own array)
             mv = wp.zeros(
                 full, dtype=wp.vec4, device=self.model.device, requires_grad=grid.requires_grad
             )
         else:
             mv.zero_()
+            if mv.grad is not None:
+                mv.grad.zero_()
         return mv
 
     def step(
@@ -293,12 +305,7 @@ class Solver:
         grid.offset = off
         pr = m.params
 
-        affine = wp.empty(
-            m.particle_count,
-            dtype=wp.mat33,
-            device=m.device,
-            requires_grad=state_out.F.requires_grad,
-        )
+        affine = self._affine(grid, state_out.F.requires_grad)
 
         def stress_inputs(chunk: int, start: int) -> list:
             return [
@@ -340,9 +347,8 @@ class Solver:
 
         # chunks write disjoint particles and their own private grid: no shared adjoints
         for cid in self.classes:
-            if cid == _k.ELASTIC_CLASS and self._elastic_taped(
-                stress_inputs, state_in, state_out, affine, grid
-            ):
+            if cid == _k.ELASTIC_CLASS:
+                self._elastic_stress(stress_inputs, state_in, state_out, affine, grid)
                 continue
             self._launch_chunks(
                 _k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine]
@@ -363,34 +369,64 @@ class Solver:
         if m.boundary is not None:
             m.boundary.apply_post_g2p(m, state_in, state_out, t, substep, dt)
 
-    def _elastic_taped(self, make_inputs, state_in: State, state_out: State, affine, grid) -> bool:
-        """Under a tape: the elastic stress with a hand-recorded adjoint (False: not taped).
+    def _affine(self, grid: Grid, requires_grad: bool):
+        """The per-particle affine matrices of a substep: the grid's own array under a tape
+        (the tape reads it in backward; its adjoint zeroed here), else one reused array
+        (fresh ones cost page faults every substep)."""
+        wp = self.wp
+        p = self.model.particle_count
+        tape = _active_tape()
+        owner = grid if (tape is not None and grid.requires_grad) else self
+        a = owner.affine
+        if a is None or a.shape[0] != p or a.requires_grad != requires_grad:
+            a = owner.affine = wp.empty(
+                p, dtype=wp.mat33, device=self.model.device, requires_grad=requires_grad
+            )
+        elif a.grad is not None:
+            a.grad.zero_()
+        return a
 
-        The recorded forward (``_stress_elastic_taped``) stores the polar rotation R of each
-        particle's trial F in ``grid.rotation``; the backward launches the adjoint of
-        ``_stress_elastic_replay`` (R read back, no SVD) on the chunks' threads.
+    def _elastic_stress(
+        self, make_inputs, state_in: State, state_out: State, affine, grid: Grid
+    ) -> None:
+        """Stress of the elastic particles with ``kernels._stress_elastic`` (fast polar rotation).
+
+        Under a tape the launch is recorded by hand: the forward stores the polar rotation R
+        of each particle's trial F in ``grid.rotation`` and the backward launches the
+        hand-written ``_stress_elastic_adjoint`` (R read back: no SVD) on the chunks' threads,
+        or Warp's adjoint of ``_stress_elastic_replay`` when some adjoint buffers are missing.
         """
         wp = self.wp
         m = self.model
         dev = m.device
         tape = _active_tape()
         outputs = [state_out.F, state_out.ep, affine]
-        needed = [state_in.C, state_in.F, state_in.ep, *outputs]
-        if tape is None or not all(a.grad is not None for a in needed):
-            return False
-        R = grid.rotation
-        if R is None or R.shape[0] != m.particle_count:
-            R = grid.rotation = wp.empty(m.particle_count, dtype=wp.mat33, device=dev)
 
         def inputs(c: int, start: int) -> list:
             full = make_inputs(c, start)
             return [*full[:9], *full[15:]]  # C F ep active volume density class E nu; dx dt start
 
+        if tape is None:
+            if self._R_dummy is None:
+                self._R_dummy = wp.empty(1, dtype=wp.mat33, device=dev)
+            self._chunked(
+                lambda c, start, n: wp.launch(
+                    _k._stress_elastic,
+                    dim=n,
+                    inputs=[*inputs(c, start), 0],
+                    outputs=[*outputs, self._R_dummy],
+                    device=dev,
+                )
+            )
+            return
+        R = grid.rotation
+        if R is None or R.shape[0] != m.particle_count:
+            R = grid.rotation = wp.empty(m.particle_count, dtype=wp.mat33, device=dev)
         self._chunked(
             lambda c, start, n: wp.launch(
-                _k._stress_elastic_taped,
+                _k._stress_elastic,
                 dim=n,
-                inputs=inputs(c, start),
+                inputs=[*inputs(c, start), 1],
                 outputs=[*outputs, R],
                 device=dev,
                 record_tape=False,
@@ -398,9 +434,25 @@ class Solver:
         )
         per_chunk = [inputs(c, start) for c, (start, _n) in enumerate(self._ranges)]
 
+        pr = m.params
+        grads = [state_in.C.grad, state_in.F.grad, state_in.ep.grad]
+        grads += [pr[k].grad for k in ("density", "E", "nu")]
+        hand = all(g is not None for g in (*grads, *(o.grad for o in outputs)))
+
         def backward() -> None:
+            # chunks write disjoint particles: no shared adjoints
             def adj(c: int, start: int, n: int) -> None:
                 ins = [*per_chunk[c], R]
+                if hand:  # the hand-written adjoint (every adjoint buffer present)
+                    wp.launch(
+                        _k._stress_elastic_adjoint,
+                        dim=n,
+                        inputs=[*ins, *(o.grad for o in outputs)],
+                        outputs=grads,
+                        device=dev,
+                        record_tape=False,
+                    )
+                    return
                 wp.launch(
                     _k._stress_elastic_replay,
                     dim=n,
@@ -417,7 +469,6 @@ class Solver:
 
         arrays = [a for a in (*per_chunk[0], *outputs) if isinstance(a, wp.array)]
         tape.record_func(backward=backward, arrays=[a for a in arrays if a.grad is not None])
-        return True
 
     def _p2g(self, make_inputs, affine, mv, state_in: State) -> None:
         """P2G scatter over the chunks; under a tape, records the hand-written adjoint
@@ -494,18 +545,28 @@ class Solver:
         if not custom:
             return
 
+        off = wp.vec3i(*grid.offset)
+        shape = tuple(grid.mv.shape[1:]) if grid.mv is not None else tuple(m.grid_dims)
+
         def backward() -> None:
-            private = (
-                [grid.velocity.grad]
-                if self.chunks == 1
-                else [wp.zeros_like(grid.velocity.grad) for _ in range(self.chunks)]
-            )
+            # one chunk: straight into the grid's adjoint; two: region-sized private buffers
+            # (the particles' stencils lie in the region), reused, then added at the offset
+            if self.chunks == 1:
+                private, poff = [grid.velocity.grad], wp.vec3i(0, 0, 0)
+            else:
+                private, poff = self._private_grids(shape), off
 
             def adj(c: int, start: int, n: int) -> None:
                 wp.launch(
                     _k._g2p_adjoint,
                     dim=n,
-                    inputs=[*inputs(start), state_out.x.grad, state_out.v.grad, state_out.C.grad],
+                    inputs=[
+                        *inputs(start),
+                        state_out.x.grad,
+                        state_out.v.grad,
+                        state_out.C.grad,
+                        poff,
+                    ],
                     outputs=[state_in.x.grad, private[c]],
                     device=dev,
                     record_tape=False,
@@ -515,15 +576,28 @@ class Solver:
             if self.chunks > 1:
                 for g in private:
                     wp.launch(
-                        _k._add_vec3_3d,
+                        _k._add_region_vec3,
                         dim=g.shape,
-                        inputs=[g],
+                        inputs=[g, off],
                         outputs=[grid.velocity.grad],
                         device=dev,
                         record_tape=False,
                     )
 
         tape.record_func(backward=backward, arrays=needed)
+
+    def _private_grids(self, shape: tuple[int, ...]) -> list:
+        """Zeroed region-sized vec3 buffers, one per chunk (reused while the shape fits)."""
+        wp = self.wp
+        bufs = self._private
+        if not bufs or any(tuple(b.shape) != tuple(shape) for b in bufs):
+            bufs = self._private = [
+                wp.zeros(shape, dtype=wp.vec3, device=self.model.device) for _ in range(self.chunks)
+            ]
+        else:
+            for b in bufs:
+                b.zero_()
+        return bufs
 
     def max_speed(self, state: State) -> float:
         """Largest particle speed [m/s]; inf when any velocity is NaN/Inf."""
