@@ -145,7 +145,6 @@ NN_SHEAR_FRACTION = 0.375
 """Non-Newtonian: shear modulus of the unyielded paste at eta = 1, as a fraction of kappa_sim."""
 
 
-
 def nn_consistency_factor(n):
     """Solver ``eta`` over the rheological consistency ``K`` of a Herschel-Bulkley paste.
 
@@ -432,7 +431,9 @@ def physical_to_sim(
     else:  # non_newtonian: keys of the Herschel-Bulkley model (module docstring)
         kappa_sim = values["kappa"] * _kappa_scale(cls, ctx)
         out["kappa"] = kappa_sim
-        out["eta"] = _mu_to_sim(cls, values["mu"], ctx) * nn_consistency_factor(values.get("n", 1.0))
+        out["eta"] = _mu_to_sim(cls, values["mu"], ctx) * nn_consistency_factor(
+            values.get("n", 1.0)
+        )
         out["mu"] = values["eta"] * NN_SHEAR_FRACTION * kappa_sim
         out["tau_Y"] = values["tau_Y"] * NN_YIELD_FACTOR
         if "n" in values:
