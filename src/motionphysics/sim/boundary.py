@@ -113,6 +113,36 @@ def _active_tape():
     return ctx.runtime.tape
 
 
+_SCRATCH: dict = {}
+_ZEROS: dict = {}
+
+
+def _pool_key(a, slot=None):
+    import threading
+
+    return (threading.get_ident(), tuple(a.shape), a.dtype, str(a.device), slot)
+
+
+def _scratch(a, slot: int):
+    """A pooled array shaped like ``a`` (contents undefined) for backward-only scratch."""
+    wp = init_warp()
+    key = _pool_key(a, slot)
+    buf = _SCRATCH.get(key)
+    if buf is None:
+        buf = _SCRATCH[key] = wp.empty(a.shape, dtype=a.dtype, device=a.device)
+    return buf
+
+
+def _zeros_like(a):
+    """A shared all-zero array shaped like ``a`` (read only)."""
+    wp = init_warp()
+    key = _pool_key(a)
+    buf = _ZEROS.get(key)
+    if buf is None:
+        buf = _ZEROS[key] = wp.zeros(a.shape, dtype=a.dtype, device=a.device)
+    return buf
+
+
 def _launch(
     kernel,
     dim,
@@ -157,13 +187,35 @@ def _launch(
     def backward():
         # Incoming gradients are read from copies, so Warp's store-adjoint does not zero
         # them in place; the result is then written over the launch domain only.
-        adj_saved = [
-            wp.zeros(a.shape, dtype=a.dtype, device=a.device) if a.grad is not None else None
-            for a in targets
-        ]
-        adj_targets = [
-            wp.clone(a.grad, requires_grad=False) if a.grad is not None else None for a in targets
-        ]
+        # Scratch is pooled (only used during this call; backward closures run one at a
+        # time). Only the launch domain is initialised: the adjoint kernel reads and writes
+        # nothing else, and only the domain is copied back below.
+        adj_saved = []
+        adj_targets = []
+        for slot, a in enumerate(targets):
+            if a.grad is None:
+                adj_saved.append(None)
+                adj_targets.append(None)
+                continue
+            g_in = _scratch(a, 2 * slot)
+            g_out = _scratch(a, 2 * slot + 1)
+            if grid_offset is None:
+                g_in.zero_()
+                wp.copy(g_out, a.grad)
+            else:
+                from motionphysics.sim import boundary_kernels as K
+
+                for src, dst in ((_zeros_like(a), g_in), (a.grad, g_out)):
+                    wp.launch(
+                        K._copy_grid_region,
+                        dim=dim,
+                        inputs=[grid_offset, src],
+                        outputs=[dst],
+                        device=device,
+                        record_tape=False,
+                    )
+            adj_saved.append(g_in)
+            adj_targets.append(g_out)
         adj_inputs = [tape.get_adjoint(a) for a in inputs]
         adj_extra = [tape.get_adjoint(a) for a in extra_outputs]
         wp.launch(
