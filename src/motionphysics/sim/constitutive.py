@@ -167,12 +167,13 @@ def fixed_corotated(F: wp.mat33, ep: float, E: float, nu: float):
 
 
 @wp.func
-def von_mises_metal(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
-    """Metal: StVK-Hencky elasticity with von Mises plasticity (radial return).
+def _von_mises_return(F: wp.mat33, ep: float, E: float, nu: float, yield_stress: float):
+    """StVK-Hencky elasticity with von Mises radial return at a given yield stress.
 
     eps = log(Sigma) (F = U Sigma V^T), s = dev(tau) = 2 mu dev(eps).
-    Yield when ||s|| > sqrt(2/3) tau_Y; then dgamma = ||dev eps|| - sqrt(2/3) tau_Y / (2 mu)
-    and eps <- eps - dgamma dev(eps)/||dev eps|| (volume kept). ep accumulates dgamma.
+    Yield when ||s|| > sqrt(2/3) yield_stress; then
+    dgamma = ||dev eps|| - sqrt(2/3) yield_stress / (2 mu) and
+    eps <- eps - dgamma dev(eps)/||dev eps|| (volume kept). ep accumulates dgamma.
     """
     U = wp.mat33()
     sig = wp.vec3()
@@ -182,7 +183,7 @@ def von_mises_metal(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
     eps = _hencky_strain(sig)
     dev = _deviator(eps)
     norm = _safe_norm(dev)
-    dgamma = norm - wp.sqrt(2.0 / 3.0) * tau_Y / (2.0 * mu)
+    dgamma = norm - wp.sqrt(2.0 / 3.0) * yield_stress / (2.0 * mu)
     Fe = F
     ep_out = ep
     if dgamma > 0.0:
@@ -193,29 +194,19 @@ def von_mises_metal(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
 
 
 @wp.func
+def von_mises_metal(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
+    """Metal: StVK-Hencky elasticity with von Mises plasticity (radial return, constant tau_Y)."""
+    return _von_mises_return(F, ep, E, nu, tau_Y)
+
+
+@wp.func
 def von_mises_damage(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
     """Plasticine: StVK-Hencky with von Mises plasticity and damage (softening).
 
     As :func:`von_mises_metal` with a yield stress that decreases with accumulated
     plastic strain ep: tau_Y(ep) = tau_Y exp(-xi ep), xi = PLASTICINE_SOFTENING.
     """
-    U = wp.mat33()
-    sig = wp.vec3()
-    V = wp.mat33()
-    wp.svd3(F, U, sig, V)
-    mu, lam = lame(E, nu)
-    eps = _hencky_strain(sig)
-    dev = _deviator(eps)
-    norm = _safe_norm(dev)
-    yield_stress = tau_Y * wp.exp(-PLASTICINE_SOFTENING * ep)
-    dgamma = norm - wp.sqrt(2.0 / 3.0) * yield_stress / (2.0 * mu)
-    Fe = F
-    ep_out = ep
-    if dgamma > 0.0:
-        eps = eps - (dgamma / norm) * dev
-        Fe = _from_strain(U, eps, V)
-        ep_out = ep + dgamma
-    return Fe, ep_out, _hencky_tau(U, eps, mu, lam)
+    return _von_mises_return(F, ep, E, nu, tau_Y * wp.exp(-PLASTICINE_SOFTENING * ep))
 
 
 @wp.func
