@@ -41,6 +41,8 @@ class Case:
     lr: float = 0.15
     lr_per_param: dict[str, float] = field(default_factory=dict)
     iterations: int = 30
+    speed: float = 2.0
+    """Speed [m/s] at which the ball is thrown at the ground."""
 
 
 CASES: dict[str, Case] = {
@@ -62,11 +64,17 @@ CASES: dict[str, Case] = {
         Case(
             "metal",
             "metal",
-            {"density": 7800.0, "E": 2.0e11, "nu": 0.3, "tau_Y": 2.0e8},
+            # A soft steel thrown at 4 m/s: elastic impact stress rho c v is 1.8x its yield
+            # stress (the sim map keeps that ratio for metal), so the true ball dents and
+            # the dent's depth tells tau_Y. At 2 m/s (impact/yield 0.46) it rebounds
+            # elastically, the motion does not depend on tau_Y above ~0.5x the true value,
+            # and nothing identifies it.
+            {"density": 7800.0, "E": 2.0e11, "nu": 0.3, "tau_Y": 1.0e8},
             ("tau_Y",),
             start_sim_factor={"tau_Y": 0.2},
             tolerance={"tau_Y": ("rel", 0.20)},
             iterations=24,
+            speed=4.0,
         ),
         Case(
             "newtonian",
@@ -114,7 +122,7 @@ def case_config(
             "frames": s["frames"],
             "frame_dt": 0.04,
             "substeps": s["substeps"],
-            "initial_velocity": [0.0, 0.0, -2.0],
+            "initial_velocity": [0.0, 0.0, -float(case.speed)],
         },
         "boundary_conditions": [
             {

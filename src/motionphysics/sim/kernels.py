@@ -273,18 +273,18 @@ def _stress_elastic_adjoint(
         a_rho = vol * wp.ddot(a_aff, Cp)
         # fixed corotated tau(F_trial, R(F_trial), mu, lam)
         J = wp.determinant(Ft)
-        Ftt = wp.transpose(Ft)
-        At = wp.transpose(A)
         trA = A[0, 0] + A[1, 1] + A[2, 2]
-        aF = 2.0 * mu * ((A + At) * Ft - At * Rp)
+        AFt = A * Ft
+        AtFR = wp.transpose(A) * (Ft - Rp)  # (A + A^T) F - A^T R = A F + AtFR
+        aF = 2.0 * mu * (AFt + AtFR)
         aF = aF + (trA * lam * (2.0 * J - 1.0) * J) * wp.transpose(wp.inverse(Ft))
         Rt = wp.transpose(Rp)
         S0 = Rt * Ft
         S = 0.5 * (S0 + wp.transpose(S0))
         G = I * (S[0, 0] + S[1, 1] + S[2, 2]) - S
-        y = wp.inverse(G) * _vee(Rt * (-2.0 * mu * A * Ft))
+        y = wp.inverse(G) * _vee(Rt * (-2.0 * mu * AFt))
         aF = aF + Rp * wp.mat33(0.0, -y[2], y[1], y[2], 0.0, -y[0], -y[1], y[0], 0.0)
-        a_mu = wp.ddot(A, 2.0 * (Ft - Rp) * Ftt)
+        a_mu = 2.0 * wp.ddot(Ft, AtFR)  # = A : 2 (F - R) F^T (cyclic trace)
         a_lam = trA * J * (J - 1.0)
         # F_out = F_trial = (I + dt C) F
         a_Ft = adj_F_out[p] + aF
@@ -477,6 +477,7 @@ def _g2p_adjoint(
     x_min: wp.vec3,
     x_max: wp.vec3,
     p_offset: int,
+    v_g2p: wp.array(dtype=wp.vec3),
     adj_x_out: wp.array(dtype=wp.vec3),
     adj_v_out: wp.array(dtype=wp.vec3),
     adj_C_out: wp.array(dtype=wp.mat33),
@@ -485,25 +486,23 @@ def _g2p_adjoint(
     adj_grid_v: wp.array3d(dtype=wp.vec3),
 ):
     # Hand-written adjoint of _g2p (Warp's generated one replays and stores all 27 stencil
-    # terms and is ~6x the forward). With W = w0[i] w1[j] w2[k], dpos = (ijk - fx) dx:
-    # v = sum W g, B = sum W g dpos^T, C = 4/dx^2 B, x_out = clamp(x + dt v).
-    #   a_g += W (a_v + a_B dpos);  a_x += grad W (g.a_v + g.a_B dpos) - W a_B^T g + a_xo.
-    # Output adjoints are consumed (zeroed), as in Warp's generated adjoints. adj_grid_v
-    # covers the nodes from grid index adj_off (a region-sized private buffer, or the full
-    # grid's adjoint with adj_off = 0).
+    # terms and is ~6x the forward). With W = a_i b_j c_k (the per-axis weights w[., axis]),
+    # dpos = (ijk - fx) dx: v = sum W g, B = sum W g dpos^T, C = 4/dx^2 B,
+    # x_out = clamp(x + dt v); ``v_g2p`` is the v the forward computed (v_out before any
+    # hook changed it), so no gather is repeated. Node and position adjoints:
+    #   a_g = W t_n,  t_n = a_v + a_B dpos_n;
+    #   a_x = a_xo - a_B^T v + sum grad W (g_n . t_n),
+    # grad W = (a'_i b_j c_k, a_i b'_j c_k, a_i b_j c'_k) / dx, summed axis by axis (inner
+    # sums over k first), and t_n built incrementally (t steps by dx a_B e_axis per node):
+    # ~17 flops per node instead of ~45. Output adjoints are consumed (zeroed), as in
+    # Warp's generated adjoints. adj_grid_v covers the nodes from grid index adj_off (a
+    # region-sized private buffer, or the full grid's adjoint with adj_off = 0).
     p = wp.tid() + p_offset
     inv_dx = 1.0 / dx
     base, fx = _stencil(x[p], lo, inv_dx, dims)
     w = _weights(fx)
     dw = _dweights(fx)
-    v_new = wp.vec3(0.0, 0.0, 0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                v_new = (
-                    v_new
-                    + (w[i, 0] * w[j, 1] * w[k, 2]) * grid_v[base[0] + i, base[1] + j, base[2] + k]
-                )
+    v_new = v_g2p[p]
     xn = x[p] + dt * v_new
     axo = adj_x_out[p]
     # clamp passes the adjoint only where it is inactive
@@ -513,26 +512,41 @@ def _g2p_adjoint(
     a_xn = wp.vec3(ax0, ax1, ax2)
     a_v = adj_v_out[p] + dt * a_xn
     a_B = (4.0 * inv_dx * inv_dx) * adj_C_out[p]
-    # sum_n W_n a_B^T g_n = a_B^T v_new: taken out of the loop
-    a_x = a_xn - wp.transpose(a_B) * v_new
+    Be0 = dx * wp.vec3(a_B[0, 0], a_B[1, 0], a_B[2, 0])
+    Be1 = dx * wp.vec3(a_B[0, 1], a_B[1, 1], a_B[2, 1])
+    Be2 = dx * wp.vec3(a_B[0, 2], a_B[1, 2], a_B[2, 2])
     r = base - adj_off
+    ti = a_v - dx * (a_B * fx)  # t at node (0, 0, 0)
+    gx = float(0.0)  # noqa: UP018  (Warp variables mutated in the loops)
+    gy = float(0.0)  # noqa: UP018
+    gz = float(0.0)  # noqa: UP018
     for i in range(3):
+        tj = ti
+        gxi = float(0.0)  # noqa: UP018
+        gyi = float(0.0)  # noqa: UP018
+        gzi = float(0.0)  # noqa: UP018
         for j in range(3):
+            t = tj
+            ab = w[i, 0] * w[j, 1]
+            sc = float(0.0)  # noqa: UP018  sum_k c_k (g.t)
+            sd = float(0.0)  # noqa: UP018  sum_k c'_k (g.t)
             for k in range(3):
-                W = w[i, 0] * w[j, 1] * w[k, 2]
-                gradW = (
-                    wp.vec3(
-                        dw[i, 0] * w[j, 1] * w[k, 2],
-                        w[i, 0] * dw[j, 1] * w[k, 2],
-                        w[i, 0] * w[j, 1] * dw[k, 2],
-                    )
-                    * inv_dx
-                )
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
                 g = grid_v[base[0] + i, base[1] + j, base[2] + k]
-                Bd = a_B * dpos
-                wp.atomic_add(adj_grid_v, r[0] + i, r[1] + j, r[2] + k, W * (a_v + Bd))
-                a_x = a_x + gradW * wp.dot(g, a_v + Bd)
+                wp.atomic_add(adj_grid_v, r[0] + i, r[1] + j, r[2] + k, (ab * w[k, 2]) * t)
+                gt = wp.dot(g, t)
+                sc = sc + w[k, 2] * gt
+                sd = sd + dw[k, 2] * gt
+                t = t + Be2
+            gxi = gxi + w[j, 1] * sc
+            gyi = gyi + dw[j, 1] * sc
+            gzi = gzi + w[j, 1] * sd
+            tj = tj + Be1
+        gx = gx + dw[i, 0] * gxi
+        gy = gy + w[i, 0] * gyi
+        gz = gz + w[i, 0] * gzi
+        ti = ti + Be0
+    # sum_n W_n a_B^T g_n = a_B^T v_new
+    a_x = a_xn - wp.transpose(a_B) * v_new + inv_dx * wp.vec3(gx, gy, gz)
     adj_x[p] = adj_x[p] + a_x
     adj_x_out[p] = wp.vec3(0.0, 0.0, 0.0)
     adj_v_out[p] = wp.vec3(0.0, 0.0, 0.0)
@@ -560,57 +574,100 @@ def _p2g_adjoint(
     adj_density: wp.array(dtype=float),
 ):
     # Hand-written adjoint of _p2g. Node n gets q_n = W (m v + A dpos) (xyz) and W m (w),
-    # dpos = (ijk - fx) dx, m = density volume active. With node adjoints (a_q, a_m):
-    #   a_v += m sum W a_q;  a_A += sum W a_q dpos^T;  a_mass += sum W (a_q.v + a_m);
-    #   a_x += sum grad W (a_q.(m v + A dpos) + a_m m) - W A^T a_q.
+    # W = a_i b_j c_k, dpos = (ijk - fx) dx, m = density volume active. With node
+    # adjoints (a_q, a_m) and s_n = a_q.(m v + A dpos_n) + a_m m:
+    #   a_v += m S,  S = sum W a_q;   a_mass += sum W (a_q.v + a_m);
+    #   a_A += sum W a_q dpos^T = dx (T - S fx^T),  T = sum W a_q ijk^T;
+    #   a_x += sum grad W s_n - A^T S.
+    # Sums are taken axis by axis (inner sums over k first) and m v + A dpos is built
+    # incrementally (it steps by dx A e_axis per node): ~16 flops per node instead of ~65,
+    # measured 28 % faster than the direct 27-term loop.
     p = wp.tid() + p_offset
     inv_dx = 1.0 / dx
     vol = volume[p] * active[p]
     m = density[p] * vol
     A = affine[p]
     vp = v[p]
-    mv = m * vp
     base, fx = _stencil(x[p], lo, inv_dx, dims)
     r = base - off
     w = _weights(fx)
     dw = _dweights(fx)
-    # mv + A dpos = q0 + dx (i A e0 + j A e1 + k A e2), q0 = mv - dx A fx
-    q0 = mv - dx * (A * fx)
     Ae0 = dx * wp.vec3(A[0, 0], A[1, 0], A[2, 0])
     Ae1 = dx * wp.vec3(A[0, 1], A[1, 1], A[2, 1])
     Ae2 = dx * wp.vec3(A[0, 2], A[1, 2], A[2, 2])
-    a_x = wp.vec3(0.0, 0.0, 0.0)
-    a_v = wp.vec3(0.0, 0.0, 0.0)  # sum W a_q
-    a_A = wp.mat33()
-    a_mw = float(0.0)  # noqa: UP018  (a Warp variable mutated in the loop)
+    qi = m * vp - dx * (A * fx)  # m v + A dpos at node (0, 0, 0)
+    S = wp.vec3(0.0, 0.0, 0.0)
+    Ti = wp.vec3(0.0, 0.0, 0.0)
+    Tj = wp.vec3(0.0, 0.0, 0.0)
+    Tk = wp.vec3(0.0, 0.0, 0.0)
+    Sm = float(0.0)  # noqa: UP018  (Warp variables mutated in the loops)
+    gx = float(0.0)  # noqa: UP018
+    gy = float(0.0)  # noqa: UP018
+    gz = float(0.0)  # noqa: UP018
     for i in range(3):
+        qj = qi
+        Si = wp.vec3(0.0, 0.0, 0.0)
+        Tji = wp.vec3(0.0, 0.0, 0.0)
+        Tki = wp.vec3(0.0, 0.0, 0.0)
+        Smi = float(0.0)  # noqa: UP018
+        gxi = float(0.0)  # noqa: UP018
+        gyi = float(0.0)  # noqa: UP018
+        gzi = float(0.0)  # noqa: UP018
         for j in range(3):
+            q = qj
+            vk = wp.vec3(0.0, 0.0, 0.0)  # sum_k c_k a_q
+            vkk = wp.vec3(0.0, 0.0, 0.0)  # sum_k k c_k a_q
+            mk = float(0.0)  # noqa: UP018  sum_k c_k a_m
+            sc = float(0.0)  # noqa: UP018  sum_k c_k s
+            sd = float(0.0)  # noqa: UP018  sum_k c'_k s
             for k in range(3):
-                wij = w[i, 0] * w[j, 1]
-                W = wij * w[k, 2]
-                gradW = (
-                    wp.vec3(
-                        dw[i, 0] * w[j, 1] * w[k, 2],
-                        w[i, 0] * dw[j, 1] * w[k, 2],
-                        wij * dw[k, 2],
-                    )
-                    * inv_dx
-                )
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
                 aq4 = adj_grid_mv[chunk, r[0] + i, r[1] + j, r[2] + k]
                 aq = wp.vec3(aq4[0], aq4[1], aq4[2])
-                Waq = W * aq
-                a_v = a_v + Waq
-                a_A = a_A + wp.outer(Waq, dpos)
-                a_mw = a_mw + W * aq4[3]
-                qn = q0 + float(i) * Ae0 + float(j) * Ae1 + float(k) * Ae2
-                a_x = a_x + gradW * (wp.dot(aq, qn) + aq4[3] * m)
-    # sum_n W_n A^T a_q = A^T a_v: taken out of the loop
-    a_x = a_x - wp.transpose(A) * a_v
+                sn = wp.dot(aq, q) + aq4[3] * m
+                c = w[k, 2]
+                sc = sc + c * sn
+                sd = sd + dw[k, 2] * sn
+                cq = c * aq
+                vk = vk + cq
+                if k == 1:
+                    vkk = vkk + cq
+                if k == 2:
+                    vkk = vkk + 2.0 * cq
+                mk = mk + c * aq4[3]
+                q = q + Ae2
+            b = w[j, 1]
+            bv = b * vk
+            Si = Si + bv
+            if j == 1:
+                Tji = Tji + bv
+            if j == 2:
+                Tji = Tji + 2.0 * bv
+            Tki = Tki + b * vkk
+            Smi = Smi + b * mk
+            gxi = gxi + b * sc
+            gyi = gyi + dw[j, 1] * sc
+            gzi = gzi + b * sd
+            qj = qj + Ae1
+        a = w[i, 0]
+        aS = a * Si
+        S = S + aS
+        if i == 1:
+            Ti = Ti + aS
+        if i == 2:
+            Ti = Ti + 2.0 * aS
+        Tj = Tj + a * Tji
+        Tk = Tk + a * Tki
+        Sm = Sm + a * Smi
+        gx = gx + dw[i, 0] * gxi
+        gy = gy + a * gyi
+        gz = gz + a * gzi
+        qi = qi + Ae0
+    a_x = inv_dx * wp.vec3(gx, gy, gz) - wp.transpose(A) * S
+    T = wp.mat33(Ti[0], Tj[0], Tk[0], Ti[1], Tj[1], Tk[1], Ti[2], Tj[2], Tk[2])
     adj_x[p] = adj_x[p] + a_x
-    adj_v[p] = adj_v[p] + m * a_v
-    adj_affine[p] = adj_affine[p] + a_A
-    adj_density[p] = adj_density[p] + (wp.dot(a_v, vp) + a_mw) * vol
+    adj_v[p] = adj_v[p] + m * S
+    adj_affine[p] = adj_affine[p] + dx * (T - wp.outer(S, fx))
+    adj_density[p] = adj_density[p] + (wp.dot(S, vp) + Sm) * vol
 
 
 @wp.kernel
@@ -647,6 +704,13 @@ def _add_region_vec3(src: wp.array3d(dtype=wp.vec3), off: wp.vec3i, dst: wp.arra
     # dst[off + ijk] += src[ijk] (a region-sized private adjoint grid into the full one)
     i, j, k = wp.tid()
     dst[i + off[0], j + off[1], k + off[2]] = dst[i + off[0], j + off[1], k + off[2]] + src[i, j, k]
+
+
+@wp.kernel
+def _zero_region_vec3(off: wp.vec3i, dst: wp.array3d(dtype=wp.vec3)):
+    # dst <- 0 on the sub-box starting at `off` (launched over the box).
+    i, j, k = wp.tid()
+    dst[i + off[0], j + off[1], k + off[2]] = wp.vec3(0.0, 0.0, 0.0)
 
 
 @wp.kernel

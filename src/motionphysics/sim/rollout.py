@@ -142,7 +142,7 @@ class Rollout:
         """Estimated memory [bytes] of recording substeps k0 .. k0+n-1 on one tape: per substep
         a full node-velocity grid, the region-sized vec4 grids (the particles' current region,
         x1.5 for growth), the state and the affine matrices, values and adjoints, and the
-        stored rotations of the elastic stress."""
+        stored rotations of the elastic stress and G2P's velocities."""
         m = self.model
         nodes = int(np.prod(m.grid_dims))
         region = nodes
@@ -152,8 +152,9 @@ class Rollout:
             region = min(nodes, int(1.5 * np.prod(shape)))
         state = m.particle_count * (12 + 12 + 36 + 36 + 4 + 4 + 36)
         grid = nodes * 12 + region * 16 * self.solver.chunks
-        rotation = m.particle_count * 36  # elastic stress: the stored polar rotations
-        return n * (2 * (grid + state) + rotation)
+        # elastic stress: the stored polar rotations; G2P: its gathered velocities
+        stored = m.particle_count * (36 + 12)
+        return n * (2 * (grid + state) + stored)
 
     def _backward_span(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
         """Propagate the adjoint ``adj`` of the state at substep k1 to substep k0 (in place).

@@ -84,9 +84,29 @@ class Grid:
     kept for the stress adjoint."""
     affine: Any = None
     """Recorded substeps only: the substep's affine matrices (P,) mat33 (see Solver.step)."""
+    v_g2p: Any = None
+    """Recorded substeps only: the particle velocities G2P gathered [m/s] (P,) vec3, before
+    the post-G2P hooks edit ``state_out.v``; read by G2P's adjoint instead of re-gathering."""
 
     def zero_grad(self) -> None:
-        for a in (self.velocity, self.mv, self.affine):
+        """Zero the adjoints. ``velocity.grad`` is only ever written on the active region of
+        the last recorded substep (G2P's adjoint scatters to the particles' stencils, the
+        grid hooks and the grid update work on the region), so only that box is zeroed."""
+        g = self.velocity.grad
+        if g is not None:
+            if self.mv is None:
+                g.zero_()
+            else:
+                wp = init_warp()
+                wp.launch(
+                    _k._zero_region_vec3,
+                    dim=tuple(self.mv.shape[1:]),
+                    inputs=[wp.vec3i(*self.offset)],
+                    outputs=[g],
+                    device=g.device,
+                    record_tape=False,
+                )
+        for a in (self.mv, self.affine):
             if a is not None and a.grad is not None:
                 a.grad.zero_()
 
@@ -97,8 +117,9 @@ class Grid:
         n *= 2 if self.requires_grad else 1
         if self.affine is not None:
             n += self.affine.capacity * (2 if self.affine.requires_grad else 1)
-        if self.rotation is not None:
-            n += self.rotation.capacity
+        for a in (self.rotation, self.v_g2p):
+            if a is not None:
+                n += a.capacity
         return n
 
 
@@ -544,17 +565,23 @@ class Solver:
         )
         if not custom:
             return
+        v_g2p = grid.v_g2p
+        if v_g2p is None or v_g2p.shape[0] != m.particle_count:
+            v_g2p = grid.v_g2p = wp.empty(m.particle_count, dtype=wp.vec3, device=dev)
+        wp.copy(v_g2p, state_out.v)  # before the post-G2P hooks edit state_out.v
 
         off = wp.vec3i(*grid.offset)
         shape = tuple(grid.mv.shape[1:]) if grid.mv is not None else tuple(m.grid_dims)
 
         def backward() -> None:
-            # one chunk: straight into the grid's adjoint; two: region-sized private buffers
-            # (the particles' stencils lie in the region), reused, then added at the offset
-            if self.chunks == 1:
-                private, poff = [grid.velocity.grad], wp.vec3i(0, 0, 0)
-            else:
-                private, poff = self._private_grids(shape), off
+            # chunk 0 scatters straight into the grid's adjoint; chunk 1 (CPU threads) into a
+            # region-sized private buffer (the particles' stencils lie in the region), reused,
+            # then added at the offset: Warp's CPU atomics are plain read-modify-writes
+            zero = wp.vec3i(0, 0, 0)
+            private, poffs = [grid.velocity.grad], [zero]
+            if self.chunks > 1:
+                private += self._private_grids(shape)
+                poffs.append(off)
 
             def adj(c: int, start: int, n: int) -> None:
                 wp.launch(
@@ -562,10 +589,11 @@ class Solver:
                     dim=n,
                     inputs=[
                         *inputs(start),
+                        v_g2p,
                         state_out.x.grad,
                         state_out.v.grad,
                         state_out.C.grad,
-                        poff,
+                        poffs[c],
                     ],
                     outputs=[state_in.x.grad, private[c]],
                     device=dev,
@@ -574,7 +602,7 @@ class Solver:
 
             self._chunked(adj)
             if self.chunks > 1:
-                for g in private:
+                for g in private[1:]:
                     wp.launch(
                         _k._add_region_vec3,
                         dim=g.shape,
@@ -587,12 +615,14 @@ class Solver:
         tape.record_func(backward=backward, arrays=needed)
 
     def _private_grids(self, shape: tuple[int, ...]) -> list:
-        """Zeroed region-sized vec3 buffers, one per chunk (reused while the shape fits)."""
+        """Zeroed region-sized vec3 buffers, one per chunk after the first (reused while the
+        shape fits)."""
         wp = self.wp
         bufs = self._private
         if not bufs or any(tuple(b.shape) != tuple(shape) for b in bufs):
             bufs = self._private = [
-                wp.zeros(shape, dtype=wp.vec3, device=self.model.device) for _ in range(self.chunks)
+                wp.zeros(shape, dtype=wp.vec3, device=self.model.device)
+                for _ in range(self.chunks - 1)
             ]
         else:
             for b in bufs:
