@@ -73,7 +73,11 @@ CASES: dict[str, Case] = {
             ("tau_Y",),
             start_sim_factor={"tau_Y": 0.2},
             tolerance={"tau_Y": ("rel", 0.20)},
-            iterations=24,
+            # Adam's momentum carries tau_Y past the truth after the climb from 0.2x (the
+            # gradient keeps its sign all the way up); a lower rate and a longer schedule
+            # let it settle (lr 0.15 / 24 iterations ends 16 % high, 0.1 / 36 within 10 %).
+            lr=0.1,
+            iterations=36,
             speed=4.0,
         ),
         Case(

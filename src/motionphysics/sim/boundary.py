@@ -134,20 +134,20 @@ def _scratch(a, slot: int):
     return buf
 
 
-def _take_saved(a):
-    """A buffer shaped like ``a`` (contents undefined) to hold a recorded launch's source.
+def _take_saved(shape, dtype, device):
+    """A buffer (contents undefined) to hold a recorded launch's source.
 
     Buffers come from a free list and go back to it when the launch's adjoint has run, so
     a rollout that records the same substeps every iteration allocates them once (fresh
-    full-grid arrays cost page faults: ~1.5 ms each at 65^3 nodes).
+    arrays cost page faults).
     """
     wp = init_warp()
-    key = (tuple(a.shape), a.dtype, str(a.device))
+    key = (tuple(shape), dtype, str(device))
     with _POOL_LOCK:
         free = _SAVED_FREE.get(key)
         if free:
             return free.pop()
-    return wp.empty(a.shape, dtype=a.dtype, device=a.device)
+    return wp.empty(shape, dtype=dtype, device=device)
 
 
 def _give_back_saved(buf) -> None:
@@ -156,38 +156,17 @@ def _give_back_saved(buf) -> None:
         _SAVED_FREE.setdefault(key, []).append(buf)
 
 
-def _copy_region(src, dst, dim, grid_offset, device) -> None:
-    """``dst <- src`` on the launch domain: the sub-box ``dim`` at ``grid_offset`` of 3D
-    grids, or the whole (particle) array when ``grid_offset`` is None."""
+def _region_copy(src, dst, dim, src_base, dst_base, device) -> None:
+    """``dst[t + dst_base] <- src[t + src_base]`` for t in the box ``dim``: a full grid's
+    sub-box into a box-sized array (``src_base`` = the box's first node) or back."""
     wp = init_warp()
-    if grid_offset is None:
-        wp.copy(dst, src)
-        return
-    from motionphysics.sim import boundary_kernels as K
-
-    wp.launch(
-        K._copy_grid_region,
-        dim=dim,
-        inputs=[grid_offset, src],
-        outputs=[dst],
-        device=device,
-        record_tape=False,
-    )
-
-
-def _zero_region(a, dim, grid_offset, device) -> None:
-    """``a <- 0`` on the launch domain (see :func:`_copy_region`)."""
-    wp = init_warp()
-    if grid_offset is None:
-        a.zero_()
-        return
     from motionphysics.sim import kernels as K
 
     wp.launch(
-        K._zero_region_vec3,
+        K._copy_region_vec3,
         dim=dim,
-        inputs=[grid_offset],
-        outputs=[a],
+        inputs=[src, src_base, dst_base],
+        outputs=[dst],
         device=device,
         record_tape=False,
     )
@@ -209,18 +188,22 @@ def _launch(
     recorded: on the launch domain ``targets.grad <- J^T targets.grad`` (elsewhere it is
     left as is), and the inputs' (parameters', positions') ``.grad`` accumulate.
     ``grid_offset``: for grid kernels launched over a sub-box (``dim``) of 3D targets,
-    the box's first node (the kernel's first input). Only the launch domain of a saved
-    source is copied: the kernel and its adjoint read nothing else. The recorded adjoint
-    may run once (its saved sources are then reused by later recordings).
+    the box's first node (the kernel's first input); such kernels also take the offset of
+    their source (``src_off``, appended here as their last input): 0 in place, the box's
+    first node for a saved copy, which holds the launch domain only (the kernel and its
+    adjoint read nothing else). The recorded adjoint may run once (its saved sources are
+    then reused by later recordings).
     """
     wp = init_warp()
     tape = _active_tape()
     needs_grad = any(getattr(a, "requires_grad", False) for a in (*inputs, *targets))
+    zero = wp.vec3i(0, 0, 0)
     if tape is None or not needs_grad:
+        grid_inputs = [zero] if grid_offset is not None else []
         wp.launch(
             kernel,
             dim=dim,
-            inputs=[*inputs, *targets],
+            inputs=[*inputs, *grid_inputs, *targets],
             outputs=[*targets, *extra_outputs],
             device=device,
             record_tape=False,
@@ -228,9 +211,14 @@ def _launch(
         return
     saved = []
     for a in targets:
-        buf = _take_saved(a)
-        _copy_region(a, buf, dim, grid_offset, device)
+        if grid_offset is None:
+            buf = _take_saved(a.shape, a.dtype, a.device)
+            wp.copy(buf, a)
+        else:
+            buf = _take_saved(tuple(dim), a.dtype, a.device)
+            _region_copy(a, buf, dim, grid_offset, zero, device)
         saved.append(buf)
+    inputs = [*inputs, grid_offset] if grid_offset is not None else list(inputs)
     wp.launch(
         kernel,
         dim=dim,
@@ -248,22 +236,21 @@ def _launch(
             )
         done.append(True)
         # The incoming gradient (targets' .grad) is read by the store adjoint, which then
-        # zeroes it; the sources' adjoint accumulates into pooled scratch (only used during
-        # this call; backward closures run one at a time), initialised on the launch domain
-        # only (the adjoint kernel reads and writes nothing else) and copied over the
-        # targets' .grad on that domain below.
+        # zeroes it; the sources' adjoint accumulates into pooled scratch shaped like the
+        # saved sources (only used during this call; backward closures run one at a time),
+        # zeroed first, and is then copied over the targets' .grad on the launch domain.
         adj_saved = []
         adj_targets = []
-        for slot, a in enumerate(targets):
+        for slot, (a, src) in enumerate(zip(targets, saved, strict=True)):
             if a.grad is None:
                 adj_saved.append(None)
                 adj_targets.append(None)
                 continue
-            g_in = _scratch(a, slot)
-            _zero_region(g_in, dim, grid_offset, device)
+            g_in = _scratch(src, slot)
+            g_in.zero_()
             adj_saved.append(g_in)
             adj_targets.append(a.grad)
-        adj_inputs = [tape.get_adjoint(a) for a in inputs]
+        adj_inputs = [tape.get_adjoint(a) if isinstance(a, wp.array) else None for a in inputs]
         adj_extra = [tape.get_adjoint(a) for a in extra_outputs]
         wp.launch(
             kernel,
@@ -277,8 +264,12 @@ def _launch(
             record_tape=False,
         )
         for a, g in zip(targets, adj_saved, strict=True):
-            if g is not None:
-                _copy_region(g, a.grad, dim, grid_offset, device)
+            if g is None:
+                continue
+            if grid_offset is None:
+                wp.copy(a.grad, g)
+            else:
+                _region_copy(g, a.grad, dim, zero, grid_offset, device)
         for buf in saved:
             _give_back_saved(buf)
 

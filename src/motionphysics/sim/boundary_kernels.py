@@ -14,7 +14,9 @@ velocities, and the adjoint is the derivative of the piece taken.
 
 Grids: ``wp.array3d(dtype=wp.vec3)`` of node velocities [m/s], node (i, j, k) at
 ``lo + (i, j, k) * dx`` [m]; grid kernels are launched over a sub-box of nodes whose
-first index is their ``off`` argument. Particles: ``wp.array(dtype=wp.vec3)`` [P].
+first index is their ``off`` argument, and read node (i, j, k) of their source at
+``(i, j, k) - src_off`` (their last input): ``src_off = 0`` when the source is the full
+grid (in place), ``off`` when it is a copy of the sub-box only (a recorded launch). Particles: ``wp.array(dtype=wp.vec3)`` [P].
 Learned parameters are one-element arrays (``[0]`` read) so their ``.grad`` collects
 the adjoint.
 """
@@ -70,6 +72,7 @@ def _clamp_grid(
     box_hi: wp.vec3,
     velocity: wp.array(dtype=wp.vec3),
     axis: wp.vec3,
+    src_off: wp.vec3i,
     v_src: wp.array3d(dtype=wp.vec3),
     v_dst: wp.array3d(dtype=wp.vec3),
 ):
@@ -78,7 +81,7 @@ def _clamp_grid(
     i = i + off[0]
     j = j + off[1]
     k = k + off[2]
-    v = v_src[i, j, k]
+    v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
     if _in_box(_node_pos(i, j, k, lo, dx), box_lo, box_hi, CONTACT_TOL * dx):
         v = wp.cw_mul(axis, velocity[0]) + wp.cw_mul(wp.vec3(1.0, 1.0, 1.0) - axis, v)
     v_dst[i, j, k] = v
@@ -89,6 +92,7 @@ def _bounding_box(
     off: wp.vec3i,
     padding: int,
     friction: wp.array(dtype=float),
+    src_off: wp.vec3i,
     v_src: wp.array3d(dtype=wp.vec3),
     v_dst: wp.array3d(dtype=wp.vec3),
 ):
@@ -98,10 +102,10 @@ def _bounding_box(
     i = i + off[0]
     j = j + off[1]
     k = k + off[2]
-    v = v_src[i, j, k]
-    nx = v_src.shape[0]
-    ny = v_src.shape[1]
-    nz = v_src.shape[2]
+    v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
+    nx = v_dst.shape[0]
+    ny = v_dst.shape[1]
+    nz = v_dst.shape[2]
     vx = v[0]
     vy = v[1]
     vz = v[2]
@@ -143,6 +147,7 @@ def _surface_collider(
     normal: wp.vec3,
     mode: int,
     friction: wp.array(dtype=float),
+    src_off: wp.vec3i,
     v_src: wp.array3d(dtype=wp.vec3),
     v_dst: wp.array3d(dtype=wp.vec3),
 ):
@@ -152,7 +157,7 @@ def _surface_collider(
     i = i + off[0]
     j = j + off[1]
     k = k + off[2]
-    v = v_src[i, j, k]
+    v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
     d = wp.dot(_node_pos(i, j, k, lo, dx) - point, normal)
     if d <= CONTACT_TOL * dx:
         vn = wp.dot(v, normal)
@@ -178,6 +183,7 @@ def _cut_grid(
     point: wp.vec3,
     normal: wp.vec3,
     damping: wp.array(dtype=float),
+    src_off: wp.vec3i,
     v_src: wp.array3d(dtype=wp.vec3),
     v_dst: wp.array3d(dtype=wp.vec3),
 ):
@@ -186,7 +192,7 @@ def _cut_grid(
     i = i + off[0]
     j = j + off[1]
     k = k + off[2]
-    v = v_src[i, j, k]
+    v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
     xn = _node_pos(i, j, k, lo, dx)
     inside = False
     if use_box != 0:
@@ -196,18 +202,6 @@ def _cut_grid(
     if inside:
         v = (1.0 - damping[0]) * v
     v_dst[i, j, k] = v
-
-
-@wp.kernel
-def _copy_grid_region(
-    off: wp.vec3i, src: wp.array3d(dtype=wp.vec3), dst: wp.array3d(dtype=wp.vec3)
-):
-    # Backward helper: the adjoint of a region launch replaces the gradient on the region only.
-    i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
-    i = i + off[0]
-    j = j + off[1]
-    k = k + off[2]
-    dst[i, j, k] = src[i, j, k]
 
 
 # ----------------------------------------------------------------------- particles

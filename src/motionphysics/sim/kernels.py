@@ -466,6 +466,18 @@ def _dweights(fx: wp.vec3):
     return wp.mat33(d0[0], d0[1], d0[2], d1[0], d1[1], d1[2], d2[0], d2[1], d2[2])
 
 
+@wp.func
+def _add_index_times(acc: wp.vec3, idx: int, x: wp.vec3):
+    """``acc + idx * x`` for a stencil offset ``idx`` in {0, 1, 2}; with the loops unrolled
+    ``idx`` is a constant and no multiply by 0 or 1 is left (the compiler may not drop
+    ``0.0 * x`` itself: it is NaN for infinite x)."""
+    if idx == 1:
+        return acc + x
+    if idx == 2:
+        return acc + 2.0 * x
+    return acc
+
+
 @wp.kernel
 def _g2p_adjoint(
     x: wp.array(dtype=wp.vec3),
@@ -629,19 +641,13 @@ def _p2g_adjoint(
                 sd = sd + dw[k, 2] * sn
                 cq = c * aq
                 vk = vk + cq
-                if k == 1:
-                    vkk = vkk + cq
-                if k == 2:
-                    vkk = vkk + 2.0 * cq
+                vkk = _add_index_times(vkk, k, cq)
                 mk = mk + c * aq4[3]
                 q = q + Ae2
             b = w[j, 1]
             bv = b * vk
             Si = Si + bv
-            if j == 1:
-                Tji = Tji + bv
-            if j == 2:
-                Tji = Tji + 2.0 * bv
+            Tji = _add_index_times(Tji, j, bv)
             Tki = Tki + b * vkk
             Smi = Smi + b * mk
             gxi = gxi + b * sc
@@ -651,10 +657,7 @@ def _p2g_adjoint(
         a = w[i, 0]
         aS = a * Si
         S = S + aS
-        if i == 1:
-            Ti = Ti + aS
-        if i == 2:
-            Ti = Ti + 2.0 * aS
+        Ti = _add_index_times(Ti, i, aS)
         Tj = Tj + a * Tji
         Tk = Tk + a * Tki
         Sm = Sm + a * Smi
@@ -704,6 +707,21 @@ def _add_region_vec3(src: wp.array3d(dtype=wp.vec3), off: wp.vec3i, dst: wp.arra
     # dst[off + ijk] += src[ijk] (a region-sized private adjoint grid into the full one)
     i, j, k = wp.tid()
     dst[i + off[0], j + off[1], k + off[2]] = dst[i + off[0], j + off[1], k + off[2]] + src[i, j, k]
+
+
+@wp.kernel
+def _copy_region_vec3(
+    src: wp.array3d(dtype=wp.vec3),
+    src_base: wp.vec3i,
+    dst_base: wp.vec3i,
+    dst: wp.array3d(dtype=wp.vec3),
+):
+    # dst[t + dst_base] <- src[t + src_base] over the box launched over: a full grid's
+    # sub-box into a box-sized array (src_base = box start, dst_base = 0) or back.
+    i, j, k = wp.tid()
+    dst[i + dst_base[0], j + dst_base[1], k + dst_base[2]] = src[
+        i + src_base[0], j + src_base[1], k + src_base[2]
+    ]
 
 
 @wp.kernel
