@@ -33,6 +33,7 @@ This module does not integrate particles, own grids, or know about materials.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -115,12 +116,10 @@ def _active_tape():
 
 _SCRATCH: dict = {}
 _SAVED_FREE: dict = {}
-_POOL_LOCK = __import__("threading").Lock()
+_POOL_LOCK = threading.Lock()
 
 
 def _pool_key(a, slot=None):
-    import threading
-
     return (threading.get_ident(), tuple(a.shape), a.dtype, str(a.device), slot)
 
 

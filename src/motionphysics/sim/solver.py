@@ -19,10 +19,11 @@ faster than the SVD) and, under a tape, stores the rotations for the SVD-free
 (SVD included).
 
 On CPU, Warp runs a launch on one thread; with ``SolverConfig.threads = 2`` the
-particles are split in two chunks launched from Python threads (ctypes releases the
-GIL), each scattering into a PRIVATE grid, summed by the grid update. Grid kernels on
-CPU run over the particles' bounding box only (the active region).
-"""
+particles are split in two chunks, the first launched from the caller's thread and the
+second from a worker thread (ctypes releases the GIL), each scattering into a PRIVATE
+grid, summed by the grid update. Grid kernels on CPU run over the particles' bounding
+box only (the active region), and so do the grid hooks, the saved copies a recorded
+hook keeps (``boundary._launch``) and the zeroing of the grid adjoints."""
 
 from __future__ import annotations
 
@@ -140,7 +141,7 @@ class Solver:
         p = model.particle_count
         half = (p + 1) // 2
         self._ranges = [(0, p)] if self.chunks == 1 else [(0, half), (half, p - half)]
-        self._pool = ThreadPoolExecutor(max_workers=2) if self.chunks > 1 else None
+        self._pool = ThreadPoolExecutor(max_workers=1) if self.chunks > 1 else None
         self.grid = self.make_grid()
         wp = self.wp
         dims = model.grid_dims
@@ -197,9 +198,13 @@ class Solver:
         if self._pool is None:
             fn(0, *self._ranges[0])
             return
-        futures = [self._pool.submit(fn, c, start, n) for c, (start, n) in enumerate(self._ranges)]
-        for f in futures:
-            f.result()
+        # the caller's thread runs the first chunk itself: one hand-off per launch, not two
+        futures = [self._pool.submit(fn, c, *r) for c, r in enumerate(self._ranges) if c > 0]
+        try:
+            fn(0, *self._ranges[0])
+        finally:
+            for f in futures:
+                f.result()
 
     def _launch_chunks(
         self, kernel, make_inputs, outputs: list, shared: tuple[int, ...] = ()
