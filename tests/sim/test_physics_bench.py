@@ -50,6 +50,13 @@ def test_bench_cli_json_with_backward(capsys):
     assert res["target"] == "mpm" and res["particles"] == 512 and res["frames"] == 2
     assert res["grad_E_finite"] and res["backward_particle_substeps_per_s"] > 0
     assert res["peak_rss_mb"] > 0
+    # forward runs cover the same frames x substeps and alternate with the backward ones
+    assert len(res["backward_over_forward_pairs"]) == 1
+    want = res["backward_seconds_median"] / res["seconds_median"]
+    assert math.isclose(res["backward_over_forward"], want, rel_tol=1e-12)
+    assert math.isclose(
+        res["particle_substeps_per_s"], 512 * 4 * 2 / res["seconds_median"], rel_tol=1e-12
+    )
 
 
 def test_bench_cli_rejects_bad_arguments(capsys):

@@ -13,7 +13,10 @@ warm-up run (Warp kernel load or compile). With ``--backward`` a run is a checkp
 forward of ``--frames`` frames of ``--substeps`` substeps plus the full backward pass
 (``Rollout.backward``, grad_mode full) of a fixed random linear loss on every frame's
 positions; it reports that throughput, its ratio to the forward one, and the process's
-peak resident memory.
+peak resident memory. Then the forward runs are ``--frames`` x ``--substeps`` substeps
+too and alternate with the forward + backward ones, so both see the same load on a
+shared machine: ``backward_over_forward`` is the ratio of the two medians, and
+``backward_over_forward_pairs`` the ratio of each pair.
 
 This module must not change the solver; it only builds the scene and times it.
 """
@@ -117,12 +120,14 @@ def time_mpm(
     b = model.state(x0, INITIAL_VELOCITY)
     start = model.state(x0, INITIAL_VELOCITY)
 
+    steps = substeps * (frames if backward else 1)
+
     def forward_once() -> float:
         nonlocal a, b
         a.assign(start)
         wp.synchronize_device(device)
         t0 = time.perf_counter()
-        for k in range(substeps):
+        for k in range(steps):
             solver.step(a, b, DT, t=k * DT, substep=k)
             a, b = b, a
         wp.synchronize_device(device)
@@ -141,7 +146,16 @@ def time_mpm(
     }
     try:
         warm = forward_once()
-        runs = [forward_once() for _ in range(repeats)]
+        if backward:
+            once = _backward_timer(model, solver, start, p, substeps, frames, seed, Rollout, np)
+            rss_before = _peak_rss_mb()
+            warm_b = once(1)  # loads / compiles the adjoint kernels; one frame is enough
+            runs, back = [], []
+            for _ in range(repeats):  # alternated: both see the same load
+                runs.append(forward_once())
+                back.append(once(frames))
+        else:
+            runs = [forward_once() for _ in range(repeats)]
         state = a.numpy()
         med = statistics.median(runs)
         result.update(
@@ -149,19 +163,27 @@ def time_mpm(
                 "warmup_s": warm,
                 "seconds": runs,
                 "seconds_median": med,
-                "particle_substeps_per_s": p * substeps / med,
+                "particle_substeps_per_s": p * steps / med,
                 "com_z_end": float(state["x"][:, 2].mean()),
                 "vz_mean_end": float(state["v"][:, 2].mean()),
             }
         )
         if backward:
+            med_b = statistics.median(back)
+            gE = model.params["E"].grad.numpy()
             result.update(
-                _time_backward(
-                    model, solver, start, p, substeps, frames, repeats, seed, Rollout, np
-                )
-            )
-            result["backward_over_forward"] = (
-                result["particle_substeps_per_s"] / result["backward_particle_substeps_per_s"]
+                {
+                    "frames": frames,
+                    "backward_warmup_s": warm_b,
+                    "backward_seconds": back,
+                    "backward_seconds_median": med_b,
+                    "backward_particle_substeps_per_s": p * steps / med_b,
+                    "grad_E_sum": float(gE.sum()),
+                    "grad_E_finite": bool(np.all(np.isfinite(gE))),
+                    "peak_rss_mb_before_backward": rss_before,
+                    "backward_over_forward": med_b / med,
+                    "backward_over_forward_pairs": [b / f for f, b in zip(runs, back, strict=True)],
+                }
             )
         result["peak_rss_mb"] = _peak_rss_mb()
     finally:
@@ -169,7 +191,8 @@ def time_mpm(
     return result
 
 
-def _time_backward(model, solver, start, p, substeps, frames, repeats, seed, Rollout, np) -> dict:
+def _backward_timer(model, solver, start, p, substeps, frames, seed, Rollout, np):
+    """``once(n_frames) -> seconds`` of a checkpointed forward + full backward."""
     from motionphysics.runtime import init_warp
 
     wp = init_warp()
@@ -188,21 +211,7 @@ def _time_backward(model, solver, start, p, substeps, frames, repeats, seed, Rol
         wp.synchronize_device(device)
         return time.perf_counter() - t0
 
-    rss_before = _peak_rss_mb()
-    warm = once(1)  # loads / compiles the adjoint kernels; one frame is enough
-    runs = [once(frames) for _ in range(repeats)]
-    med = statistics.median(runs)
-    gE = model.params["E"].grad.numpy()
-    return {
-        "frames": frames,
-        "backward_warmup_s": warm,
-        "backward_seconds": runs,
-        "backward_seconds_median": med,
-        "backward_particle_substeps_per_s": p * substeps * frames / med,
-        "grad_E_sum": float(gE.sum()),
-        "grad_E_finite": bool(np.all(np.isfinite(gE))),
-        "peak_rss_mb_before_backward": rss_before,
-    }
+    return once
 
 
 def _run(args) -> int:
