@@ -55,7 +55,7 @@ SCENE = {
 
 def _motion(names, scale: float = 0.1, lift: float = 0.03):
     from motionphysics.init import EstimateOptions, estimate_many
-    from motionphysics.pipeline import _map_to_sim, _simulate, resolve_material
+    from motionphysics.pipeline import _map_to_sim, resolve_material, simulate_forward
     from motionphysics.progress import Progress
     from motionphysics.scene import load_scene
     from motionphysics.scene.prepare import prepare
@@ -77,7 +77,7 @@ def _motion(names, scale: float = 0.1, lift: float = 0.03):
         )
         sim_values, _ = _map_to_sim(res["material"], cfg, sim_scene)
         with Progress(quiet=True) as prog, prog.stage("simulate") as st:
-            xs, _, vs, _ = _simulate(
+            xs, _, vs, _ = simulate_forward(
                 sim_scene, cfg, res["material"], sim_values, "cpu", cfg.sim.frames, st
             )
         m = physical_metrics({"x": xs, "t": np.arange(len(xs)) * cfg.sim.frame_dt, "v": vs})

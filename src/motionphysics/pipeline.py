@@ -56,9 +56,12 @@ __all__ = [
     "load_run_config",
     "resolve_paths",
     "read_params_file",
+    "render_video",
     "run_pipeline",
+    "simulate_forward",
     "versions",
     "summary_text",
+    "write_run_trajectory",
 ]
 
 PARAMS_SCHEMA = "motionphysics.params/1"
@@ -755,7 +758,7 @@ def run_pipeline(
         # ---- simulate ----------------------------------------------------------------
         frames = int(cfg.sim.frames)
         with stage("simulate", total=frames) as st:
-            xs, Fs, vs, substeps = _simulate(
+            xs, Fs, vs, substeps = simulate_forward(
                 sim_scene, cfg, material, sim_values, device, frames, st
             )
             state["sim_context"]["substeps"] = substeps
@@ -763,12 +766,12 @@ def run_pipeline(
 
         # ---- render ------------------------------------------------------------------
         with stage("render", total=frames) as st:
-            video = _render_video(rd, sim_scene, xs, Fs, camera, background, ground, cfg, st)
+            video = render_video(rd, sim_scene, xs, Fs, camera, background, ground, cfg, st)
             written.append("video.mp4")
 
         # ---- outputs -----------------------------------------------------------------
         with stage("write outputs"):
-            traj = _write_trajectory(rd, sim_scene, xs, Fs, vs, cfg, material)
+            traj = write_run_trajectory(rd, sim_scene, xs, Fs, vs, cfg, material)
             written.append("trajectory.npz")
             metrics = write_metrics(rd, traj)
             written.append("metrics.json")
@@ -893,8 +896,8 @@ def _optimise(cfg, sim_scene, material, camera, rd, resume: bool, stage_handle) 
     )
 
 
-def _simulate(sim_scene, cfg: RunConfig, material, sim_values, device, frames: int, st):
-    """Forward simulation.
+def simulate_forward(sim_scene, cfg: RunConfig, material, sim_values, device, frames: int, st):
+    """Forward simulation of ``frames`` frames (shared by ``run``/``simulate`` and ``fit``).
 
     Returns x [T, P, 3] m, F [T, P, 3, 3] and v [T, P, 3] m/s, float32 numpy (T = frames,
     frame 0 = the initial state).
@@ -924,7 +927,7 @@ def _simulate(sim_scene, cfg: RunConfig, material, sim_values, device, frames: i
     return xs, Fs, vs, int(sim.substeps)
 
 
-def _render_video(
+def render_video(
     rd, sim_scene, xs, Fs, camera, background, ground, cfg: RunConfig, st
 ) -> np.ndarray:
     """Render every frame (no autograd) and write video.mp4; returns frames [T, H, W, 3] uint8."""
@@ -951,7 +954,11 @@ def _render_video(
     return video
 
 
-def _write_trajectory(rd, sim_scene, xs, Fs, vs, cfg: RunConfig, material) -> dict[str, np.ndarray]:
+def write_run_trajectory(
+    rd, sim_scene, xs, Fs, vs, cfg: RunConfig, material
+) -> dict[str, np.ndarray]:
+    """Write ``trajectory.npz`` of the run directory (DESIGN.md: x, t, plus F, v, masses,
+    volumes and what the viewer and metrics need); returns it as read back."""
     from motionphysics.io.rundir import read_trajectory, write_trajectory
 
     frames = xs.shape[0]

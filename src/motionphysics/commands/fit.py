@@ -441,11 +441,11 @@ def run_fit(
     from motionphysics.pipeline import (
         PARAMS_SCHEMA,
         UNITS,
-        _render_video,
-        _simulate,
-        _write_trajectory,
+        render_video,
+        simulate_forward,
         versions,
         write_metrics,
+        write_run_trajectory,
     )
     from motionphysics.progress import Progress
     from motionphysics.runtime import check_device, set_threads
@@ -514,11 +514,11 @@ def run_fit(
         )
     frames = int(cfg.sim.frames)
     with progress.stage("simulate", total=frames) as st:
-        xs, Fs, vs, _ = _simulate(
+        xs, Fs, vs, _ = simulate_forward(
             setup.sim_scene, final_cfg, material, sim_values, device, frames, st
         )
     with progress.stage("render", total=frames) as st:
-        video = _render_video(
+        video = render_video(
             rd, setup.sim_scene, xs, Fs, setup.camera, setup.background, setup.ground, final_cfg, st
         )
     with progress.stage("write outputs"):
@@ -527,7 +527,7 @@ def run_fit(
             phys.get("density", material.density),
             {k: v for k, v in phys.items() if k != "density"},
         )
-        traj = _write_trajectory(rd, setup.sim_scene, xs, Fs, vs, final_cfg, final_material)
+        traj = write_run_trajectory(rd, setup.sim_scene, xs, Fs, vs, final_cfg, final_material)
         metrics = write_metrics(rd, traj)
         records = _plot_records(result.history, setup.names)
         plots = []
