@@ -167,13 +167,16 @@ def fixed_corotated(F: wp.mat33, ep: float, E: float, nu: float):
 
 
 @wp.func
-def _von_mises_return(F: wp.mat33, ep: float, E: float, nu: float, yield_stress: float):
-    """StVK-Hencky elasticity with von Mises radial return at a given yield stress.
+def _von_mises_return(
+    F: wp.mat33, ep: float, E: float, nu: float, yield_stress: float, eta: float, dt: float
+):
+    """StVK-Hencky elasticity with a (viscously regularised) von Mises radial return.
 
     eps = log(Sigma) (F = U Sigma V^T), s = dev(tau) = 2 mu dev(eps).
     Yield when ||s|| > sqrt(2/3) yield_stress; then
-    dgamma = ||dev eps|| - sqrt(2/3) yield_stress / (2 mu) and
+    dgamma = (||dev eps|| - sqrt(2/3) yield_stress / (2 mu)) / (1 + eta / (2 mu dt)) and
     eps <- eps - dgamma dev(eps)/||dev eps|| (volume kept). ep accumulates dgamma.
+    eta = 0 is the plain radial return (the division by 1.0 is exact).
     """
     U = wp.mat33()
     sig = wp.vec3()
@@ -183,10 +186,11 @@ def _von_mises_return(F: wp.mat33, ep: float, E: float, nu: float, yield_stress:
     eps = _hencky_strain(sig)
     dev = _deviator(eps)
     norm = _safe_norm(dev)
-    dgamma = norm - wp.sqrt(2.0 / 3.0) * yield_stress / (2.0 * mu)
+    over = norm - wp.sqrt(2.0 / 3.0) * yield_stress / (2.0 * mu)
     Fe = F
     ep_out = ep
-    if dgamma > 0.0:
+    if over > 0.0:
+        dgamma = over / (1.0 + eta / (2.0 * mu * dt))
         eps = eps - (dgamma / norm) * dev
         Fe = _from_strain(U, eps, V)
         ep_out = ep + dgamma
@@ -196,7 +200,7 @@ def _von_mises_return(F: wp.mat33, ep: float, E: float, nu: float, yield_stress:
 @wp.func
 def von_mises_metal(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
     """Metal: StVK-Hencky elasticity with von Mises plasticity (radial return, constant tau_Y)."""
-    return _von_mises_return(F, ep, E, nu, tau_Y)
+    return _von_mises_return(F, ep, E, nu, tau_Y, 0.0, 1.0)
 
 
 @wp.func
@@ -206,7 +210,7 @@ def von_mises_damage(F: wp.mat33, ep: float, E: float, nu: float, tau_Y: float):
     As :func:`von_mises_metal` with a yield stress that decreases with accumulated
     plastic strain ep: tau_Y(ep) = tau_Y exp(-xi ep), xi = PLASTICINE_SOFTENING.
     """
-    return _von_mises_return(F, ep, E, nu, tau_Y * wp.exp(-PLASTICINE_SOFTENING * ep))
+    return _von_mises_return(F, ep, E, nu, tau_Y * wp.exp(-PLASTICINE_SOFTENING * ep), 0.0, 1.0)
 
 
 @wp.func
@@ -219,23 +223,7 @@ def viscoplastic_foam(
     the over-stress y = ||s_trial|| - sqrt(2/3) tau_Y > 0. In strain space (s = 2 mu dev eps):
     dgamma = (||dev eps|| - sqrt(2/3) tau_Y/(2 mu)) / (1 + eta/(2 mu dt)).
     """
-    U = wp.mat33()
-    sig = wp.vec3()
-    V = wp.mat33()
-    wp.svd3(F, U, sig, V)
-    mu, lam = lame(E, nu)
-    eps = _hencky_strain(sig)
-    dev = _deviator(eps)
-    norm = _safe_norm(dev)
-    over = norm - wp.sqrt(2.0 / 3.0) * tau_Y / (2.0 * mu)
-    Fe = F
-    ep_out = ep
-    if over > 0.0:
-        dgamma = over / (1.0 + eta / (2.0 * mu * dt))
-        eps = eps - (dgamma / norm) * dev
-        Fe = _from_strain(U, eps, V)
-        ep_out = ep + dgamma
-    return Fe, ep_out, _hencky_tau(U, eps, mu, lam)
+    return _von_mises_return(F, ep, E, nu, tau_Y, eta, dt)
 
 
 @wp.func
