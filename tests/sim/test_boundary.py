@@ -716,3 +716,25 @@ def test_cuda_matches_cpu():
         ]
     for a, b in zip(out["cpu"], out["cuda"], strict=True):
         np.testing.assert_allclose(a, b, atol=1e-5)  # different FMA contraction / sin-cos only
+
+
+def test_buffer_pool_reuses_and_stays_bounded():
+    """The saved-source / scratch pool of recorded hooks hands back returned buffers of the
+    same shape, and drops the least recently returned shapes past its byte cap (the active
+    region's shape drifts as the material moves: an unbounded pool would leak)."""
+    from motionphysics.sim.boundary import _BufferPool
+
+    wp = init_warp()
+    one = 10 * 10 * 10 * 12  # bytes of a (10, 10, 10) vec3 array
+    pool = _BufferPool(cap=3 * one)
+    a = pool.take((10, 10, 10), wp.vec3, "cpu")
+    pool.give(a)
+    assert pool.take((10, 10, 10), wp.vec3, "cpu") is a  # reused, not reallocated
+    pool.give(a)
+    for n in (11, 12, 13, 14, 15):
+        pool.give(pool.take((n, 10, 10), wp.vec3, "cpu"))
+        assert pool._bytes <= pool.cap
+    # the oldest shapes went first; the newest is still there
+    assert pool.take((10, 10, 10), wp.vec3, "cpu") is not a
+    b = pool.take((15, 10, 10), wp.vec3, "cpu")
+    assert b.shape == (15, 10, 10) and pool._bytes <= pool.cap

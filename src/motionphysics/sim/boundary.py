@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -114,45 +115,54 @@ def _active_tape():
     return ctx.runtime.tape
 
 
-_SCRATCH: dict = {}
-_SAVED_FREE: dict = {}
-_POOL_LOCK = threading.Lock()
+class _BufferPool:
+    """Free lists of Warp arrays by (shape, dtype, device), bounded in bytes.
 
-
-def _pool_key(a, slot=None):
-    return (threading.get_ident(), tuple(a.shape), a.dtype, str(a.device), slot)
-
-
-def _scratch(a, slot: int):
-    """A pooled array shaped like ``a`` (contents undefined) for backward-only scratch."""
-    wp = init_warp()
-    key = _pool_key(a, slot)
-    buf = _SCRATCH.get(key)
-    if buf is None:
-        buf = _SCRATCH[key] = wp.empty(a.shape, dtype=a.dtype, device=a.device)
-    return buf
-
-
-def _take_saved(shape, dtype, device):
-    """A buffer (contents undefined) to hold a recorded launch's source.
-
-    Buffers come from a free list and go back to it when the launch's adjoint has run, so
-    a rollout that records the same substeps every iteration allocates them once (fresh
-    arrays cost page faults).
+    A recorded launch takes a buffer for its saved source and gives it back once its
+    adjoint has run; the adjoint takes and gives back its scratch. A rollout that records
+    the same substeps every iteration then allocates its buffers once (fresh arrays cost
+    page faults). The active region, and so the shapes, drift as the material moves:
+    when the free buffers exceed ``cap`` bytes the least recently returned shapes are
+    dropped, so the pool cannot grow without bound.
     """
-    wp = init_warp()
-    key = (tuple(shape), dtype, str(device))
-    with _POOL_LOCK:
-        free = _SAVED_FREE.get(key)
-        if free:
-            return free.pop()
-    return wp.empty(shape, dtype=dtype, device=device)
+
+    def __init__(self, cap: int):
+        self.cap = int(cap)
+        self._free: OrderedDict = OrderedDict()  # key -> [arrays], least recent first
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def _key(shape, dtype, device):
+        return (tuple(int(n) for n in shape), dtype, str(device))
+
+    def take(self, shape, dtype, device):
+        """An array of ``shape`` (contents undefined)."""
+        key = self._key(shape, dtype, device)
+        with self._lock:
+            free = self._free.get(key)
+            if free:
+                buf = free.pop()
+                self._bytes -= buf.capacity
+                return buf
+        return init_warp().empty(key[0], dtype=dtype, device=device)
+
+    def give(self, buf) -> None:
+        """Return ``buf`` (taken from :meth:`take`, no longer used by its taker)."""
+        key = self._key(buf.shape, buf.dtype, buf.device)
+        with self._lock:
+            self._free.setdefault(key, []).append(buf)
+            self._free.move_to_end(key)
+            self._bytes += buf.capacity
+            while self._bytes > self.cap and self._free:
+                old, bufs = next(iter(self._free.items()))
+                self._bytes -= bufs.pop(0).capacity
+                if not bufs:
+                    del self._free[old]
 
 
-def _give_back_saved(buf) -> None:
-    key = (tuple(buf.shape), buf.dtype, str(buf.device))
-    with _POOL_LOCK:
-        _SAVED_FREE.setdefault(key, []).append(buf)
+_POOL = _BufferPool(cap=512 << 20)
+"""Saved sources of recorded launches and their adjoints' scratch."""
 
 
 def _region_copy(src, dst, dim, src_base, dst_base, device) -> None:
@@ -211,10 +221,10 @@ def _launch(
     saved = []
     for a in targets:
         if grid_offset is None:
-            buf = _take_saved(a.shape, a.dtype, a.device)
+            buf = _POOL.take(a.shape, a.dtype, a.device)
             wp.copy(buf, a)
         else:
-            buf = _take_saved(tuple(dim), a.dtype, a.device)
+            buf = _POOL.take(dim, a.dtype, a.device)
             _region_copy(a, buf, dim, grid_offset, zero, device)
         saved.append(buf)
     inputs = [*inputs, grid_offset] if grid_offset is not None else list(inputs)
@@ -236,16 +246,16 @@ def _launch(
         done.append(True)
         # The incoming gradient (targets' .grad) is read by the store adjoint, which then
         # zeroes it; the sources' adjoint accumulates into pooled scratch shaped like the
-        # saved sources (only used during this call; backward closures run one at a time),
-        # zeroed first, and is then copied over the targets' .grad on the launch domain.
+        # saved sources, zeroed first, and is then copied over the targets' .grad on the
+        # launch domain.
         adj_saved = []
         adj_targets = []
-        for slot, (a, src) in enumerate(zip(targets, saved, strict=True)):
+        for a, src in zip(targets, saved, strict=True):
             if a.grad is None:
                 adj_saved.append(None)
                 adj_targets.append(None)
                 continue
-            g_in = _scratch(src, slot)
+            g_in = _POOL.take(src.shape, src.dtype, src.device)
             g_in.zero_()
             adj_saved.append(g_in)
             adj_targets.append(a.grad)
@@ -269,8 +279,8 @@ def _launch(
                 wp.copy(a.grad, g)
             else:
                 _region_copy(g, a.grad, dim, zero, grid_offset, device)
-        for buf in saved:
-            _give_back_saved(buf)
+        for buf in (*saved, *(g for g in adj_saved if g is not None)):
+            _POOL.give(buf)
 
     tracked = [a for a in (*inputs, *targets) if isinstance(a, wp.array) and a.grad is not None]
     tape.record_func(backward=backward, arrays=tracked)
