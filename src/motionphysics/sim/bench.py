@@ -206,7 +206,8 @@ def _backward_timer(model, solver, start, p, substeps, frames, seed, Rollout, np
         model.zero_grad()
         wp.synchronize_device(device)
         t0 = time.perf_counter()
-        rollout.forward(start, n_frames + 1, keep_checkpoints=True, check=False)
+        # as the torch bridge does when a full backward follows
+        rollout.forward(start, n_frames + 1, keep_checkpoints=True, check=False, record_last=True)
         rollout.backward({f: adjoints[f] for f in range(1, n_frames + 1)}, grad_mode="full")
         wp.synchronize_device(device)
         return time.perf_counter() - t0

@@ -38,7 +38,12 @@ class _SimulateFn(torch.autograd.Function):
         _write(sim, names, values, force_names, force_values, v0)
         rollout = sim.rollout
         need_grad = any(ctx.needs_input_grad[6:])
-        res = rollout.forward(sim.state0, max(frames) + 1, keep_checkpoints=need_grad)
+        res = rollout.forward(
+            sim.state0,
+            max(frames) + 1,
+            keep_checkpoints=need_grad,
+            record_last=need_grad and grad_mode == "full",
+        )
         ctx.sim = sim
         ctx.names = names
         ctx.force_names = force_names
@@ -62,7 +67,13 @@ class _SimulateFn(torch.autograd.Function):
         _write(sim, names, tensors[:nparam], force_names, tensors[nparam:], v0)
         rollout = sim.rollout
         if getattr(rollout, "_owner", None) is not ctx:
-            rollout.forward(sim.state0, max(ctx.frames) + 1, keep_checkpoints=True, check=False)
+            rollout.forward(
+                sim.state0,
+                max(ctx.frames) + 1,
+                keep_checkpoints=True,
+                check=False,
+                record_last=ctx.grad_mode == "full",
+            )
         adjoints: dict[int, dict[str, Any]] = {}
         for i, f in enumerate(ctx.frames):
             entry = adjoints.setdefault(int(f), {})

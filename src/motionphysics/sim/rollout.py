@@ -74,10 +74,28 @@ class Rollout:
         self.checkpoints: list[State] = []
         self._owner: Any = None  # the bridge call whose forward produced the checkpoints
         self._scratch: dict[str, Any] | None = None  # backward buffers, reused across calls
+        self._tail: tuple[int, int, Any] | None = None  # (k0, k1, tape) kept by forward()
 
     def release_scratch(self) -> None:
         """Free the state / grid buffers that :meth:`backward` keeps for its next call."""
         self._scratch = None
+        self._tail = None
+
+    def _context(self) -> dict[str, Any]:
+        """The backward's buffers (kept between calls: fresh ones cost page faults, ~5 ms
+        per substep at 20k particles, 64^3); :meth:`release_scratch` frees them."""
+        m = self.model
+        p = m.particle_count
+        ctx = self._scratch
+        if ctx is None or ctx["particles"] != p:
+            ctx = self._scratch = {
+                "particles": p,
+                "work": State.zeros(p, m.device),
+                "scratch": State.zeros(p, m.device),
+                "sin": State.zeros(p, m.device, requires_grad=True),
+                "sout": State.zeros(p, m.device, requires_grad=True),
+            }
+        return ctx
 
     # ----------------------------------------------------------------- forward
     def _substep(self, state_in: State, state_out: State, k: int, grid=None) -> None:
@@ -106,8 +124,16 @@ class Rollout:
         keep_velocities: bool = False,
         keep_checkpoints: bool = True,
         check: bool = True,
+        record_last: bool = False,
     ) -> RolloutResult:
-        """Run ``num_frames - 1`` frames from ``state0`` (left unchanged); frame 0 = ``state0``."""
+        """Run ``num_frames - 1`` frames from ``state0`` (left unchanged); frame 0 = ``state0``.
+
+        ``record_last`` (with ``keep_checkpoints``): a ``grad_mode='full'`` backward follows,
+        so the last frame's substeps are recorded on a tape now, when that tape fits
+        ``tape_memory``, and that backward starts from it instead of recomputing them (the
+        other frames are recomputed from their checkpoints as usual). The positions are the
+        same either way (the recorded step runs the same kernels).
+        """
         if num_frames < 1:
             raise ValueError("num_frames must be >= 1")
         p = self.model.particle_count
@@ -115,6 +141,9 @@ class Rollout:
         Fs = np.empty((num_frames, p, 3, 3), np.float32)
         vs = np.empty((num_frames, p, 3), np.float32) if keep_velocities else None
         self._owner = None
+        self._tail = None
+        S = self.substeps
+        last = num_frames - 1
         a = state0.clone(requires_grad=False)
         b = State.zeros(p, self.model.device)
         self.checkpoints = [a.clone()] if keep_checkpoints else []
@@ -127,9 +156,15 @@ class Rollout:
 
         record(0, a)
         for f in range(1, num_frames):
-            for s in range(self.substeps):
-                self._substep(a, b, (f - 1) * self.substeps + s)
-                a, b = b, a
+            # (the tape must fit as in _backward_span, which then takes it: same estimate)
+            tail = record_last and keep_checkpoints and f == last
+            if tail and self._span_bytes(S, (f - 1) * S) <= self.tape_memory:
+                self._record_tail(a, (f - 1) * S, f * S)
+                a.assign(self._scratch["tstates"][S])
+            else:
+                for s in range(S):
+                    self._substep(a, b, (f - 1) * S + s)
+                    a, b = b, a
             if check:
                 self.check(a, f)
             if keep_checkpoints:
@@ -186,8 +221,9 @@ class Rollout:
                 k += 1
             out.assign(work)
 
-    def _backward_span_taped(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
-        wp = self.wp
+    def _record(self, k0: int, k1: int, start: State | None, ctx: dict[str, Any]):
+        """Record substeps k0 .. k1-1 on a new tape, one state and grid per substep (from
+        ``ctx``); the first state is ``start``, or the state at k0 from the checkpoints."""
         n = k1 - k0
         p = self.model.particle_count
         states = ctx.setdefault("tstates", [])
@@ -196,15 +232,32 @@ class Rollout:
             states.append(State.zeros(p, self.model.device, requires_grad=True))
         while len(grids) < n:
             grids.append(self.solver.make_grid(requires_grad=True))
-        self._start_state(k0, states[0], ctx)
+        if start is None:
+            self._start_state(k0, states[0], ctx)
+        else:
+            states[0].assign(start)
         for s in states[: n + 1]:
             s.zero_grad()
         for g in grids[:n]:
             g.zero_grad()
-        tape = wp.Tape()
+        tape = self.wp.Tape()
         with tape:
             for i in range(n):
                 self._substep(states[i], states[i + 1], k0 + i, grid=grids[i])
+        return tape, states
+
+    def _record_tail(self, start: State, k0: int, k1: int) -> None:
+        tape, _ = self._record(k0, k1, start, self._context())
+        self._tail = (k0, k1, tape)
+
+    def _backward_span_taped(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
+        wp = self.wp
+        n = k1 - k0
+        tail, self._tail = self._tail, None
+        if tail is not None and tail[:2] == (k0, k1):
+            tape, states = tail[2], ctx["tstates"]  # recorded by forward(record_last=True)
+        else:
+            tape, states = self._record(k0, k1, None, ctx)
         for f in State.FIELDS:
             wp.copy(getattr(states[n], f).grad, getattr(adj, f))
         tape.backward()
@@ -271,17 +324,9 @@ class Rollout:
         span = S if grad_mode == "full" else (1 if grad_mode == "last_substep" else int(window))
         if span < 1:
             raise ValueError("window must be >= 1")
-        ctx = self._scratch
-        if ctx is None or ctx["particles"] != p:
-            # kept for the next backward (fresh buffers cost page faults: ~5 ms per substep
-            # at 20k particles, 64^3); release_scratch() frees them
-            ctx = self._scratch = {
-                "particles": p,
-                "work": State.zeros(p, m.device),
-                "scratch": State.zeros(p, m.device),
-                "sin": State.zeros(p, m.device, requires_grad=True),
-                "sout": State.zeros(p, m.device, requires_grad=True),
-            }
+        ctx = self._context()
+        if grad_mode != "full":
+            self._tail = None  # only a full backward walks the last frame's substeps
         if grad_mode == "full":
             adj = State.zeros(p, m.device)
             for f in range(frames[-1], 0, -1):
