@@ -111,7 +111,6 @@ def time_mpm(
     import numpy as np
 
     from motionphysics.runtime import init_warp
-    from motionphysics.sim.rollout import Rollout
 
     wp = init_warp()
     model, solver, x0 = build_scene(particles, grid, device, threads, requires_grad=backward)
@@ -147,7 +146,7 @@ def time_mpm(
     try:
         warm = forward_once()
         if backward:
-            once = _backward_timer(model, solver, start, p, substeps, frames, seed, Rollout, np)
+            once = _backward_timer(model, solver, start, substeps, frames, seed)
             rss_before = _peak_rss_mb()
             warm_b = once(1)  # loads / compiles the adjoint kernels; one frame is enough
             runs, back = [], []
@@ -191,14 +190,18 @@ def time_mpm(
     return result
 
 
-def _backward_timer(model, solver, start, p, substeps, frames, seed, Rollout, np):
+def _backward_timer(model, solver, start, substeps: int, frames: int, seed: int):
     """``once(n_frames) -> seconds`` of a checkpointed forward + full backward."""
+    import numpy as np
+
     from motionphysics.runtime import init_warp
+    from motionphysics.sim.rollout import Rollout
 
     wp = init_warp()
     device = model.device
     rollout = Rollout(solver, substeps, substeps * DT)
     rng = np.random.default_rng(seed)
+    p = model.particle_count
     weights = {f: rng.standard_normal((p, 3)).astype(np.float32) for f in range(1, frames + 1)}
     adjoints = {f: {"x": w} for f, w in weights.items()}
 

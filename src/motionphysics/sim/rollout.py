@@ -156,11 +156,14 @@ class Rollout:
 
         record(0, a)
         for f in range(1, num_frames):
-            # (the tape must fit as in _backward_span, which then takes it: same estimate)
-            tail = record_last and keep_checkpoints and f == last
-            if tail and self._span_bytes(S, (f - 1) * S) <= self.tape_memory:
-                self._record_tail(a, (f - 1) * S, f * S)
-                a.assign(self._scratch["tstates"][S])
+            # the tape must fit as in _backward_span, which then takes it (same estimate)
+            if (
+                record_last
+                and keep_checkpoints
+                and f == last
+                and self._span_bytes(S, (f - 1) * S) <= self.tape_memory
+            ):
+                a.assign(self._record_tail(a, (f - 1) * S, f * S))
             else:
                 for s in range(S):
                     self._substep(a, b, (f - 1) * S + s)
@@ -246,9 +249,12 @@ class Rollout:
                 self._substep(states[i], states[i + 1], k0 + i, grid=grids[i])
         return tape, states
 
-    def _record_tail(self, start: State, k0: int, k1: int) -> None:
-        tape, _ = self._record(k0, k1, start, self._context())
+    def _record_tail(self, start: State, k0: int, k1: int) -> State:
+        """Record substeps k0 .. k1-1 from ``start`` for the next backward; returns the
+        state at k1 (a recorded buffer: copy it before the next recording)."""
+        tape, states = self._record(k0, k1, start, self._context())
         self._tail = (k0, k1, tape)
+        return states[k1 - k0]
 
     def _backward_span_taped(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
         wp = self.wp
@@ -325,8 +331,6 @@ class Rollout:
         if span < 1:
             raise ValueError("window must be >= 1")
         ctx = self._context()
-        if grad_mode != "full":
-            self._tail = None  # only a full backward walks the last frame's substeps
         if grad_mode == "full":
             adj = State.zeros(p, m.device)
             for f in range(frames[-1], 0, -1):
@@ -335,6 +339,7 @@ class Rollout:
                 self._backward_span((f - 1) * S, f * S, adj, ctx)
             _add_state(adj0, adj)
             return adj0
+        self._tail = None  # a kept last-frame tape serves only the full backward
         for f in frames:
             adj = State.zeros(p, m.device)
             _add_adjoint(adj, adjoints[f])
