@@ -13,7 +13,7 @@ $(BIN)/motionphysics: pyproject.toml
 	$(BIN)/pip install -q --upgrade pip
 	# torch first and alone: the pinned CPU build, so no dependency can pull a CUDA one.
 	$(BIN)/pip install -q torch==2.13.0
-	$(BIN)/pip install -q -e '.[dev]'
+	$(BIN)/pip install -q -e '.[dev,all]'
 	touch $@
 
 demo: $(BIN)/motionphysics
