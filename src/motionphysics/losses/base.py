@@ -15,12 +15,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import ClassVar
+from pathlib import Path
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor
 
-__all__ = ["Loss", "LossContext", "Prediction"]
+__all__ = ["Loss", "LossBuildContext", "LossContext", "Prediction"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,25 @@ class LossContext:
     """Free-form per-iteration values for plug-ins (e.g. the prompt, the prior)."""
 
 
+@dataclass
+class LossBuildContext:
+    """What a loss built from the config (``optimize.losses``) may use at construction."""
+
+    prompt: str
+    """The run's prompt (priors condition on it)."""
+    prior: Any = None
+    """The run's :class:`~motionphysics.priors.VideoPrior`, or None (``--prior none``)."""
+    num_frames: int = 0
+    """Frames in the whole run (``sim.frames``)."""
+    frame_dt: float = 0.0
+    """Seconds between output frames."""
+    out_dir: Path | None = None
+    """The run directory (a loss that samples a reference writes ``prior_reference.mp4`` here)."""
+    device: str = "cpu"
+    seed: int = 0
+    """The optimisation seed (a loss that samples draws from a generator seeded with it)."""
+
+
 class Loss(ABC):
     """A scalar objective over a :class:`Prediction`.
 
@@ -69,6 +89,28 @@ class Loss(ABC):
     """True when the loss reads ``Prediction.rgb``."""
     needs_states: ClassVar[bool] = False
     """True when the loss reads ``Prediction.xs`` / ``Prediction.Fs``."""
+
+    Options: ClassVar[Any] = None
+    """Optional strict pydantic model of the loss's config options (``optimize.losses[i]``)."""
+    needs_prior: ClassVar[bool] = False
+    """True when the loss cannot work without a video prior."""
+
+    @classmethod
+    def build(cls, options: Any, ctx: LossBuildContext) -> Loss:
+        """Construct from validated ``options`` (an instance of ``Options``) and ``ctx``.
+
+        Losses that need targets only the caller has (a reference video) do not
+        override this and are constructed directly."""
+        from motionphysics.errors import UserInputError
+
+        raise UserInputError(f"loss {cls.name!r} cannot be built from the config alone")
+
+    def state_dict(self) -> dict:
+        """Learnable or stochastic state to checkpoint (e.g. the LMD extractor); default none."""
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore what :meth:`state_dict` returned."""
 
     @abstractmethod
     def __call__(self, pred: Prediction, ctx: LossContext) -> Tensor:

@@ -1,0 +1,201 @@
+"""The one interface every video-diffusion motion prior implements (:class:`VideoPrior`).
+
+A prior turns rendered frames into latents (differentiably), adds noise on its own
+schedule, and predicts both the clean latent x̂0 and the noise ε̂ from a noisy latent,
+with classifier-free guidance applied as the diffusers pipelines apply it. The losses
+(``lmd``, ``sds``, ``flow``, ``video``) use only this interface, so a backend is one
+module (CogVideoX, ModelScope, the embedded tiny prior).
+
+Conventions (shared by every backend):
+
+- frames: ``[T, H, W, 3]`` float32 in [0, 1] (what the renderer produces);
+- latents: ``[B, F_lat, C, h, w]`` (the CogVideoX pipeline layout); a backend whose
+  network wants another layout (the VAE's ``[B, C, F, H, W]``, ModelScope's UNet) permutes
+  inside its own ``encode`` / ``model_output``;
+- timesteps: integer tensors ``[B]`` in ``[0, num_train_timesteps)``;
+- ``alphas_cumprod``: ``[num_train_timesteps]`` float32 (ᾱ_t);
+- the forward process ``x_t = √ᾱ z + √(1−ᾱ) ε``.
+
+x̂0 and ε̂ are derived from the network output without ever dividing by √ᾱ for
+v-prediction (CogVideoX's zero-terminal-SNR end has ᾱ_999 = 0):
+``x̂0 = √ᾱ x_t − √(1−ᾱ) v̂``, ``ε̂ = √ᾱ v̂ + √(1−ᾱ) x_t``.
+For epsilon-prediction ``x̂0 = (x_t − √(1−ᾱ) ε̂) / √ᾱ`` (ᾱ ≥ 0.0046 on ModelScope's
+schedule, so the division is safe there).
+
+This module must not import diffusers or transformers.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import torch
+from torch import Tensor
+
+__all__ = ["GuidedPrediction", "TextEmbeddings", "VideoPrior"]
+
+PredictionType = Literal["epsilon", "v_prediction"]
+
+
+@dataclass(frozen=True)
+class TextEmbeddings:
+    """Encoded prompt, computed once per run (the text encoder may then be released)."""
+
+    cond: Tensor
+    """[1, L, D] conditional token embeddings."""
+    uncond: Tensor
+    """[1, L, D] unconditional (negative-prompt) token embeddings."""
+    prompt: str
+    negative_prompt: str = ""
+
+
+@dataclass(frozen=True)
+class GuidedPrediction:
+    """One guided denoising prediction at timestep ``t``."""
+
+    x0: Tensor
+    """[B, F_lat, C, h, w] predicted clean latent x̂0 (guided)."""
+    eps: Tensor
+    """[B, F_lat, C, h, w] predicted noise ε̂ (guided)."""
+    eps_cond: Tensor
+    """[B, F_lat, C, h, w] conditional ε̂ (no guidance)."""
+    eps_uncond: Tensor
+    """[B, F_lat, C, h, w] unconditional ε̂."""
+    t: Tensor
+    """[B] the timesteps used."""
+
+
+class VideoPrior(ABC):
+    """A text-to-video diffusion model used as a motion prior.
+
+    Subclasses set the attributes below in their constructor and implement
+    :meth:`from_pretrained`, :meth:`encode_text`, :meth:`encode`, :meth:`decode` and
+    :meth:`model_output`. The generic parts (noise, guidance, x̂0 / ε̂, DDIM sampling)
+    live here so every backend computes them the same way.
+    """
+
+    name: ClassVar[str] = "prior"
+    prediction_type: PredictionType
+    """What the network predicts: ``epsilon`` (ModelScope, tiny) or ``v_prediction`` (CogVideoX)."""
+    num_frames: int
+    """Frames per clip the prior is run at (rendered subsequences are resampled to this)."""
+    height: int
+    """Pixel height the prior is run at."""
+    width: int
+    """Pixel width the prior is run at."""
+    device: torch.device
+    dtype: torch.dtype
+    """Dtype of the networks (float32 on CPU; bf16 / fp16 on CUDA)."""
+    alphas_cumprod: Tensor
+    """[num_train_timesteps] float32 ᾱ_t on ``device``."""
+
+    _text: TextEmbeddings | None = None
+
+    # --- what a backend implements -------------------------------------------------
+    @classmethod
+    @abstractmethod
+    def from_pretrained(
+        cls, path: str | None, *, device: str = "cpu", dtype: torch.dtype | None = None, **options
+    ) -> VideoPrior:
+        """Load from ``path`` (a diffusers-layout directory, a hub id, or None for an
+        embedded default). Missing or wrong components raise ``UserInputError`` naming
+        what is missing and how to get it."""
+
+    @abstractmethod
+    def encode_text(self, prompt: str, negative_prompt: str = "") -> TextEmbeddings:
+        """Encode ``prompt`` and ``negative_prompt`` with the prior's text encoder."""
+
+    @abstractmethod
+    def encode(self, frames: Tensor) -> Tensor:
+        """[T, H, W, 3] frames in [0, 1] -> [1, F_lat, C, h, w] scaled latents, differentiable.
+
+        Resizes to ``(height, width)`` and resamples to ``num_frames`` first."""
+
+    @abstractmethod
+    def decode(self, latents: Tensor) -> Tensor:
+        """[1, F_lat, C, h, w] scaled latents -> [num_frames, height, width, 3] in [0, 1]."""
+
+    @abstractmethod
+    def model_output(self, z_t: Tensor, t: Tensor, text: Tensor) -> Tensor:
+        """Raw network output (ε̂ or v̂, per ``prediction_type``) for ``z_t`` [B, F_lat, C, h, w],
+        ``t`` [B] and token embeddings ``text`` [B, L, D]. Runs without building a graph
+        through the network unless the caller enabled grad."""
+
+    # --- shared -----------------------------------------------------------------------
+    @property
+    def num_train_timesteps(self) -> int:
+        return int(self.alphas_cumprod.shape[0])
+
+    def set_prompt(self, prompt: str, negative_prompt: str = "") -> TextEmbeddings:
+        """Encode and cache the prompt (once per run); returns the cached embeddings."""
+        if self._text is None or (self._text.prompt, self._text.negative_prompt) != (
+            prompt,
+            negative_prompt,
+        ):
+            self._text = self.encode_text(prompt, negative_prompt)
+        return self._text
+
+    @property
+    def text(self) -> TextEmbeddings:
+        if self._text is None:
+            raise RuntimeError("VideoPrior.set_prompt() must be called before predicting")
+        return self._text
+
+    def _alpha(self, t: Tensor, like: Tensor) -> Tensor:
+        a = self.alphas_cumprod.to(like.device)[t.long()].to(torch.float32)
+        return a.view(-1, *([1] * (like.dim() - 1)))
+
+    def add_noise(self, z0: Tensor, noise: Tensor, t: Tensor) -> Tensor:
+        """x_t = √ᾱ_t z0 + √(1−ᾱ_t) ε."""
+        a = self._alpha(t, z0)
+        return a.sqrt() * z0 + (1.0 - a).sqrt() * noise
+
+    def to_x0_eps(self, out: Tensor, z_t: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
+        """(x̂0, ε̂) from a network output, per ``prediction_type``."""
+        a = self._alpha(t, z_t)
+        if self.prediction_type == "v_prediction":
+            return a.sqrt() * z_t - (1.0 - a).sqrt() * out, a.sqrt() * out + (1.0 - a).sqrt() * z_t
+        return (z_t - (1.0 - a).sqrt() * out) / a.sqrt(), out
+
+    def predict(self, z_t: Tensor, t: Tensor, guidance: float) -> GuidedPrediction:
+        """Guided x̂0 and ε̂ for ``z_t`` at ``t`` (no graph through the network).
+
+        Guidance as the diffusers pipelines apply it: ``out = out_u + g (out_c − out_u)``
+        on the raw output (v or ε), one batched call over [uncond; cond]."""
+        text = self.text
+        b = z_t.shape[0]
+        with torch.no_grad():
+            emb = torch.cat([text.uncond.expand(b, -1, -1), text.cond.expand(b, -1, -1)])
+            raw = self.model_output(torch.cat([z_t, z_t]), torch.cat([t, t]), emb).float()
+            out_u, out_c = raw.chunk(2)
+            out = out_u + guidance * (out_c - out_u)
+            x0, eps = self.to_x0_eps(out, z_t.float(), t)
+            _, eps_c = self.to_x0_eps(out_c, z_t.float(), t)
+            _, eps_u = self.to_x0_eps(out_u, z_t.float(), t)
+        return GuidedPrediction(x0=x0, eps=eps, eps_cond=eps_c, eps_uncond=eps_u, t=t)
+
+    def latent_shape(self) -> tuple[int, ...]:
+        """[1, F_lat, C, h, w] of one clip's latent (from encoding a black clip)."""
+        with torch.no_grad():
+            z = self.encode(torch.zeros(self.num_frames, self.height, self.width, 3))
+        return tuple(z.shape)
+
+    def sample(
+        self, *, steps: int = 10, guidance: float = 6.0, generator: torch.Generator | None = None
+    ) -> Tensor:
+        """A clip generated for the cached prompt by deterministic DDIM (η = 0) over
+        ``steps`` trailing timesteps -> [num_frames, height, width, 3] in [0, 1]."""
+        shape = self.latent_shape()
+        z = torch.randn(shape, generator=generator).to(self.device)
+        n = self.num_train_timesteps
+        ts = torch.linspace(n - 1, 0, steps).round().long()
+        for i, t in enumerate(ts):
+            tt = t.view(1).to(self.device)
+            pred = self.predict(z, tt, guidance)
+            a_prev = self.alphas_cumprod[ts[i + 1]] if i + 1 < len(ts) else torch.tensor(1.0)
+            a_prev = a_prev.to(z.device, torch.float32)
+            z = a_prev.sqrt() * pred.x0 + (1.0 - a_prev).sqrt() * pred.eps
+        with torch.no_grad():
+            return self.decode(z).clamp(0.0, 1.0)
