@@ -19,7 +19,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import IO
 
-__all__ = ["Progress", "Stage"]
+from motionphysics.events import Observer
+
+__all__ = ["Progress", "ProgressObserver", "Stage"]
 
 
 class Stage:
@@ -151,3 +153,15 @@ class Progress:
     def _describe(self, st: Stage, text: str) -> None:
         if self._rich is not None and self._task is not None:
             self._rich.update(self._task, description=text)
+
+
+class ProgressObserver(Observer):
+    """The :class:`~motionphysics.events.Observer` side of a :class:`Progress`: messages
+    become detail lines of the display (stages are timed by :meth:`Progress.stage`,
+    which the run-directory writer opens itself)."""
+
+    def __init__(self, progress: Progress):
+        self.progress = progress
+
+    def message(self, level: str, text: str) -> None:
+        self.progress.log(text if level == "info" else f"{level}: {text}")

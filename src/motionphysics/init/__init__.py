@@ -13,9 +13,19 @@ from motionphysics.init.estimate import (
     estimate_many,
 )
 from motionphysics.init.llm import LLMError, LLMOptions
+from motionphysics.registry import Registry
+
+INIT_BACKENDS: Registry = Registry(
+    "init backend",
+    "--init",
+    # Each name resolves to the entry point that runs it (``estimate(prompt, image,
+    # backend=name)``); the names drive the CLI choices of run/init and the checks.
+    {name: "motionphysics.init.estimate:estimate" for name in BACKENDS},
+)
 
 __all__ = [
     "BACKENDS",
+    "INIT_BACKENDS",
     "EstimateOptions",
     "MaterialEstimate",
     "estimate",

@@ -1,0 +1,916 @@
+"""The one assembly behind every command: a :class:`~motionphysics.config.RunConfig`
+(plus a device and whether gradients are needed) -> the parts a run is made of.
+
+:func:`assemble` loads and prepares the scene, resolves the camera (auto-framing) and
+the ground floor, resolves the material with its provenance (config ``material:``
+block > ``--params`` file > init backend estimate > range centre), and resolves the
+simulation context **once**: the map context of :mod:`motionphysics.materials.simmap`
+(``dt = frame_dt / 512`` under ``substeps: auto``, ``frame_dt / n`` for a fixed ``n``),
+the simulation values and the substep count. ``run``, ``simulate``, ``fit``, the
+system-identification cases and the prior-driven refinement all build their
+simulation here, so the same config and parameters give the same trajectory, bit for
+bit, whichever command runs it (tests/test_assembly.py).
+
+The physical -> simulation map is evaluated by one function, :func:`sim_values`, in
+torch float64 for every caller (the forward-only commands and the differentiable
+optimisation alike); a Python-float path beside it would round differently.
+
+:class:`BridgeSimulator` and :class:`SplatRenderer` are the adapters the optimisation
+loop (:mod:`motionphysics.optimize`) consumes; under ``substeps: auto`` the simulator
+re-resolves the substep count from the current parameters before each rollout and
+reports a change through the observer (the rollout's CFL check stays in force).
+
+This module builds and runs components; it writes no files (the run directory is
+:mod:`motionphysics.io.writer`'s) and must not import ``motionphysics.pipeline``,
+``motionphysics.commands`` or ``motionphysics.optimize``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from motionphysics.config import RunConfig, SurfaceCollider, config_from_dict, config_to_dict
+from motionphysics.errors import SimulationError, UserInputError
+from motionphysics.events import NullObserver, Observer
+from motionphysics.io.writer import UNITS
+
+__all__ = [
+    "AUTO_MAP_SUBSTEPS",
+    "UNITS",
+    "Assembly",
+    "BridgeSimulator",
+    "SimResolution",
+    "SplatRenderer",
+    "assemble",
+    "estimate_material",
+    "ground_splats",
+    "map_context",
+    "material_complete",
+    "material_record",
+    "render_frames",
+    "render_view",
+    "resolve_camera",
+    "resolve_material",
+    "resolve_simulation",
+    "resolve_substeps",
+    "sim_values",
+    "simulate_forward",
+]
+
+AUTO_MAP_SUBSTEPS = 512
+"""Under ``substeps: auto`` the sim map uses ``dt = frame_dt / 512`` (materials.simmap):
+the map must not depend on the substep count it is used to choose."""
+
+
+
+def _np(a) -> np.ndarray:
+    if hasattr(a, "detach"):
+        return a.detach().cpu().numpy()
+    return np.asarray(a)
+
+
+@contextmanager
+def _null_stage(name: str, total: int | None = None) -> Iterator[Any]:
+    yield _NullHandle()
+
+
+class _NullHandle:
+    def advance(self, n: int = 1) -> None:
+        pass
+
+    def note(self, text: str) -> None:
+        pass
+
+    def set_total(self, total: int) -> None:
+        pass
+
+
+# --------------------------------------------------------------------------------------
+# material
+# --------------------------------------------------------------------------------------
+def _range_centre(cls: str, name: str) -> float:
+    """Centre of a parameter's handbook range (geometric for log-scaled ones)."""
+    from motionphysics.materials.catalog import spec
+
+    ps = spec(cls, name)
+    if getattr(ps, "default", None) is not None:
+        return float(ps.default)
+    lo, hi = float(ps.low), float(ps.high)
+    if getattr(ps, "scale", "linear") == "log" and lo > 0:
+        return math.sqrt(lo * hi)
+    return 0.5 * (lo + hi)
+
+
+def estimate_material(prompt: str, image, backend: str, announce: bool = False) -> dict[str, Any]:
+    """Run an init backend (CONTRACTS.md, "init").
+
+    ``image`` is the reference render, uint8 [H, W, 3]. Returns ``{class, density,
+    params, backend, raw, clamps, estimate}`` (``estimate``: the backend's full record).
+    """
+    from motionphysics.init import EstimateOptions, estimate
+
+    # ``announce``: the kb backend reports its model load on stderr (only on a verbose run).
+    est = estimate(prompt, image=image, backend=backend, options=EstimateOptions(announce=announce))
+    return {
+        "class": est.cls,
+        "density": float(est.density),
+        "params": {k: float(v) for k, v in est.values.items()},
+        "backend": est.backend,
+        "raw": est.raw_answer,
+        "clamps": [c.to_dict() for c in est.clamped],
+        "estimate": est.to_dict(),
+    }
+
+
+def resolve_material(
+    cfg: RunConfig, estimate: dict[str, Any] | None, base: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """Combine an estimate (or a params file) with the config's ``material:`` block.
+
+    Precedence per field: config ``material:`` > ``base`` (``--params`` file) >
+    ``estimate``; a field none of them gives (the config changed the class) takes the
+    centre of the class's handbook range. Out-of-range values are clamped into the
+    range and recorded. Returns ``{"material": MaterialParams, "clamps": [...],
+    "sources": {name: str}, "overrides": {...}, "class_override": bool}``.
+    """
+    from motionphysics.materials.catalog import MATERIALS, normalise_class, validate
+
+    mat = cfg.material
+    given = mat.overrides()
+    start = base if base is not None else estimate
+    start_name = "params file" if base is not None else (estimate or {}).get("backend", "estimate")
+    if mat.class_ is not None:
+        cls = normalise_class(mat.class_, field="material.class")
+    elif start is not None and start.get("class") is not None:
+        cls = normalise_class(start["class"], field=f"{start_name}.class")
+    else:
+        raise UserInputError(
+            "material.class: missing (give it in the config or pass --params FILE)"
+        )
+    names = MATERIALS[cls].names
+    same_class = (
+        start is not None
+        and start.get("class") is not None
+        and normalise_class(start["class"], field=f"{start_name}.class") == cls
+    )
+    if base is not None and same_class:
+        stray = sorted(k for k in (base.get("params") or {}) if k not in names)
+        if stray:
+            raise UserInputError(
+                f"{base.get('origin', 'params file')}: parameter(s) {', '.join(stray)} do not belong "
+                f"to class {cls} (expected {', '.join(names)})"
+            )
+    values: dict[str, float] = {}
+    sources: dict[str, str] = {}
+    extra = sorted(k for k in given if k != "density" and k not in names)
+    if extra:
+        raise UserInputError(
+            f"material: parameter(s) {', '.join(extra)} do not belong to class {cls} "
+            f"(expected {', '.join(names)})"
+        )
+    for name in ("density", *names):
+        if name in given:
+            values[name] = given[name]
+            sources[name] = "config"
+            continue
+        sval = None
+        if start is not None and (same_class or name == "density"):
+            sval = (
+                start.get("density") if name == "density" else (start.get("params") or {}).get(name)
+            )
+        if sval is not None:
+            values[name] = sval
+            sources[name] = start_name
+        else:
+            values[name] = _range_centre(cls, name)
+            sources[name] = f"range centre of {cls}"
+    density = values.pop("density")
+    params, clamps = validate(
+        cls, values, density=density, on_out_of_range="clamp", origin="material"
+    )
+    return {
+        "material": params,
+        "clamps": [c.to_dict() for c in clamps],
+        "sources": sources,
+        "overrides": given,
+        "class_override": mat.class_ is not None and (start is None or not same_class),
+    }
+
+
+def material_complete(cfg: RunConfig) -> bool:
+    """True when the config's ``material:`` block names a class and all of its parameters."""
+    from motionphysics.materials.catalog import MATERIALS, normalise_class
+
+    m = cfg.material
+    if m.class_ is None or m.density is None:
+        return False
+    given = m.overrides()
+    mc = MATERIALS[normalise_class(m.class_, field="material.class")]
+    return all(p.name in given or getattr(p, "default", None) is not None for p in mc.params)
+
+
+def material_record(
+    material, sim_values: dict[str, float], sim_ctx: dict[str, Any]
+) -> dict[str, Any]:
+    from motionphysics.materials.catalog import class_id
+
+    return {
+        "class": material.cls,
+        "class_id": int(class_id(material.cls)),
+        "density": float(material.density),
+        "params": {k: float(v) for k, v in material.values.items()},
+        "units": {k: UNITS[k] for k in ("density", *material.values)},
+        "sim": dict(sim_values),
+        "sim_context": sim_ctx,
+    }
+
+
+# --------------------------------------------------------------------------------------
+# simulation context: resolved here, once, for every command
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SimResolution:
+    """The simulation a material gets under a config (what every command simulates)."""
+
+    values: dict[str, float]
+    """Simulation values (``materials.simmap``), density included, python floats."""
+    context: Any
+    """The :class:`~motionphysics.materials.simmap.SimContext` of the map."""
+    substeps: int
+    """Substeps per frame (``sim.substeps``, or the CFL choice under ``auto``)."""
+    frame_dt: float
+    """Seconds between output frames."""
+    grid_dims: tuple[int, int, int]
+    auto: bool
+    """True when ``sim.substeps`` is ``auto`` (an optimiser re-resolves as it moves)."""
+
+    @property
+    def dt(self) -> float:
+        """Substep [s]."""
+        return self.frame_dt / self.substeps
+
+    def record(self) -> dict[str, Any]:
+        """The ``sim_context`` block of ``params.json``."""
+        return {
+            "dx": float(self.context.dx),
+            "dt": self.frame_dt / self.substeps,
+            "dt_map": float(self.context.dt),
+            "substeps": int(self.substeps),
+            "substeps_mode": "auto" if self.auto else "fixed",
+            "frame_dt": float(self.frame_dt),
+            "length": float(self.context.length),
+            "grid_dims": [int(v) for v in self.grid_dims],
+        }
+
+
+def map_context(cfg: RunConfig, sim_scene, density: float):
+    """The sim-map context of a config and prepared scene (the one place it is made).
+
+    ``dt`` of the map: ``frame_dt / n`` for fixed substeps ``n``; ``frame_dt / 512``
+    under ``auto`` (:data:`AUTO_MAP_SUBSTEPS`), so the map does not depend on the count
+    it is used to choose.
+    """
+    from motionphysics.materials.simmap import SimContext
+
+    frame_dt = float(cfg.sim.frame_dt)
+    pts = np.asarray(_np(sim_scene.particles))
+    length = float(np.max(pts.max(0) - pts.min(0)))
+    gravity = float(np.linalg.norm(np.asarray(cfg.sim.gravity, dtype=np.float64)))
+    n = AUTO_MAP_SUBSTEPS if cfg.sim.substeps == "auto" else int(cfg.sim.substeps)
+    return SimContext(
+        dx=float(sim_scene.dx),
+        dt=frame_dt / n,
+        density=float(density),
+        length=length,
+        gravity=gravity,
+    )
+
+
+def sim_values(physical: Mapping[str, Any], cls: str, ctx) -> dict[str, Any]:
+    """Physical values (floats, 0-dim or [P] tensors; density included) -> simulation values.
+
+    The one evaluation of the sim map every command uses: inputs are cast to torch
+    float64 (differentiably), so a forward-only run and an optimisation at the same
+    physical values get the same simulation values to the last bit. Returns float64
+    tensors (0-dim or [P]).
+    """
+    import torch
+
+    from motionphysics.materials.simmap import physical_to_sim
+
+    phys = {
+        k: (
+            v.to(torch.float64)
+            if torch.is_tensor(v)
+            else torch.tensor(float(v), dtype=torch.float64)
+        )
+        for k, v in physical.items()
+        if k != "class"
+    }
+    return physical_to_sim(phys, ctx, cls=cls)
+
+
+def _floats(values: Mapping[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in values.items():
+        a = _np(v).astype(np.float64)
+        out[k] = float(a) if a.ndim == 0 else a
+    return out
+
+
+def resolve_substeps(cfg: RunConfig, cls: str, values: Mapping[str, Any], dx: float) -> int:
+    """Substeps per frame for simulation ``values`` under ``cfg`` (``auto``: the CFL limit)."""
+    if cfg.sim.substeps != "auto":
+        return int(cfg.sim.substeps)
+    from motionphysics.sim.solver import auto_substeps
+
+    return int(auto_substeps({"class": cls, **_floats(values)}, float(dx), float(cfg.sim.frame_dt)))
+
+
+def resolve_simulation(material, cfg: RunConfig, sim_scene) -> SimResolution:
+    """Map context, simulation values and substeps of ``material`` (MaterialParams)."""
+    ctx = map_context(cfg, sim_scene, float(material.density))
+    phys = {"density": float(material.density), **{k: float(v) for k, v in material.values.items()}}
+    values = {k: float(v) for k, v in _floats(sim_values(phys, material.cls, ctx)).items()}
+    substeps = resolve_substeps(cfg, material.cls, values, float(sim_scene.dx))
+    return SimResolution(
+        values=values,
+        context=ctx,
+        substeps=substeps,
+        frame_dt=float(cfg.sim.frame_dt),
+        grid_dims=tuple(int(v) for v in sim_scene.grid_dims),
+        auto=cfg.sim.substeps == "auto",
+    )
+
+
+def _pinned(cfg: RunConfig, substeps: int) -> RunConfig:
+    """``cfg`` with ``sim.substeps`` fixed to the resolved count (what build_simulation gets)."""
+    return cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"substeps": int(substeps)})})
+
+
+def simulate_forward(
+    sim_scene, cfg: RunConfig, material, sim_values, device, frames: int, st, observer=None
+):
+    """Forward simulation of ``frames`` frames (what ``run``/``simulate``/``fit`` output).
+
+    ``sim_values``: simulation values (of :func:`resolve_simulation`); the substep count
+    is resolved from them by :func:`resolve_substeps`. ``st``: a progress stage handle
+    (``advance()``/``note()``). Returns x [T, P, 3] m, F [T, P, 3, 3] and v [T, P, 3]
+    m/s, float32 numpy (T = frames, frame 0 = the initial state), and the substeps.
+    """
+    from motionphysics.sim import build_simulation
+
+    observer = observer or NullObserver()
+    n = resolve_substeps(cfg, material.cls, sim_values, float(sim_scene.dx))
+    sim = build_simulation(
+        sim_scene, _pinned(cfg, n), {"class": material.cls, **sim_values}, device
+    )
+    st.note(f"simulate ({sim.substeps} substeps/frame)")
+    ro = sim.rollout
+    check = ro.check
+
+    # The rollout calls ``check`` once per simulated frame; that is the per-frame hook
+    # (sim/ has no observer of its own).
+    def check_and_count(state, frame):
+        check(state, frame)
+        st.advance()
+        observer.frame_simulated(int(frame), int(frames))
+
+    ro.check = check_and_count
+    st.advance()  # frame 0 is the initial state
+    xs, Fs, vs = sim.run(frames, return_velocities=True)
+    xs = np.asarray(_np(xs), dtype=np.float32)
+    Fs = np.asarray(_np(Fs), dtype=np.float32)
+    vs = np.asarray(_np(vs), dtype=np.float32)
+    if not (np.isfinite(xs).all() and np.isfinite(Fs).all()):
+        raise SimulationError(
+            "the simulation produced non-finite positions or deformation "
+            "gradients; lower sim.frame_dt or use more substeps"
+        )
+    return xs, Fs, vs, int(sim.substeps)
+
+
+# --------------------------------------------------------------------------------------
+# camera, ground, rendering
+# --------------------------------------------------------------------------------------
+def _ground_height(cfg: RunConfig, xy_centre: np.ndarray, up: np.ndarray) -> float | None:
+    """Height (along ``up``) of the highest upward-facing collider plane under the object."""
+    best = None
+    for bc in cfg.boundary_conditions:
+        if isinstance(bc, SurfaceCollider) and bc.mode != "cut":
+            n = np.asarray(bc.normal, dtype=np.float64)
+            n = n / max(np.linalg.norm(n), 1e-12)
+            if float(n @ up) > 0.7:
+                # plane n.(p - point) = 0, evaluated under the object's centre
+                p0 = np.asarray(bc.point, dtype=np.float64)
+                c = xy_centre.copy()
+                # move c along up until it is on the plane
+                s = float(n @ (p0 - c)) / float(n @ up)
+                h = float((c + s * up) @ up)
+                best = h if best is None else max(best, h)
+    return best
+
+
+def _up(cfg: RunConfig) -> np.ndarray:
+    g = np.asarray(cfg.sim.gravity, dtype=np.float64)
+    n = np.linalg.norm(g)
+    return -g / n if n > 0 else np.array([0.0, 0.0, 1.0])
+
+
+def _object_box(sim_scene) -> tuple[np.ndarray, np.ndarray]:
+    """Robust bounding box [3], [3] of the visible splat centres [m] (0.5 / 99.5 percentiles)."""
+    pts = _np(sim_scene.splats.means).astype(np.float64)
+    return np.percentile(pts, 0.5, axis=0), np.percentile(pts, 99.5, axis=0)
+
+
+def _fit_radius(corners: np.ndarray, cam, fill: float = 0.9) -> float:
+    """Smallest orbit radius at which every corner [K, 3] projects inside ``fill`` of the image."""
+    import torch
+
+    from motionphysics.render.camera import orbit_camera
+
+    pts = torch.as_tensor(corners, dtype=torch.float64)
+
+    def fits(r: float) -> bool:
+        c = orbit_camera(cam.azimuth, cam.elevation, r, cam.look_at, cam.fov, cam.width, cam.height)
+        uv, z = c.project(pts)
+        if bool((z <= 1e-3).any()):
+            return False
+        u = (uv[:, 0] - c.cx) / (0.5 * c.width)
+        v = (uv[:, 1] - c.cy) / (0.5 * c.height)
+        return bool((u.abs() <= fill).all() and (v.abs() <= fill).all())
+
+    lo, hi = 1e-3, 1.0
+    while not fits(hi):
+        hi *= 2.0
+        if hi > 1e7:
+            raise UserInputError(
+                "camera: could not frame the scene automatically; set camera.radius"
+            )
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return hi
+
+
+def resolve_camera(cfg: RunConfig, sim_scene) -> tuple[RunConfig, dict[str, Any]]:
+    """The run camera; when the config leaves ``radius`` and ``look_at`` unset, frame the scene.
+
+    Auto-framing keeps in view the object and, when there is a ground (the highest
+    upward-facing collider plane under the object), the ground below it widened
+    sideways by an eighth of the object's size so material spreading on the ground
+    stays visible. It searches the orbit radius at which all of that fits in 90 % of
+    the image. Without a ground collider the floor of the simulation domain plays the
+    ground's part when it is near. Returns the config with the resolved camera written in (so ``run.yaml``
+    reproduces the view) and a note for ``params.json``.
+    """
+    cam = cfg.camera
+    explicit = cam.model_fields_set
+    if cam.cameras_json or {"radius", "look_at"} & explicit:
+        return cfg, {"framing": "config"}
+    lo, hi = _object_box(sim_scene)
+    up = _up(cfg)
+    size = float(np.max(hi - lo))
+    box_lo, box_hi = lo.copy(), hi.copy()
+    ground = _ground_height(cfg, 0.5 * (lo + hi), up)
+    if ground is None and up[2] > 0.99 and np.linalg.norm(cfg.sim.gravity) > 0:
+        # No ground collider: a falling object stops at the domain floor; keep it in view
+        # when that floor is near (a user-given domain may be far larger than the object).
+        floor = float(_np(sim_scene.domain_lo)[2]) + 2.0 * float(sim_scene.dx)
+        if lo[2] - floor < 3.0 * size:
+            ground = floor
+    if ground is not None and abs(up[2]) > 0.99:
+        box_lo[2] = min(box_lo[2], ground) if up[2] > 0 else box_lo[2]
+        box_hi[2] = box_hi[2] if up[2] > 0 else max(box_hi[2], ground)
+        box_lo[:2] -= 0.12 * size
+        box_hi[:2] += 0.12 * size
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (box_lo[0], box_hi[0])
+            for y in (box_lo[1], box_hi[1])
+            for z in (box_lo[2], box_hi[2])
+        ]
+    )
+    look_at = tuple(float(v) for v in 0.5 * (box_lo + box_hi))
+    probe = cam.model_copy(update={"look_at": look_at})
+    radius = _fit_radius(corners, probe)
+    new_cam = cam.model_copy(update={"look_at": look_at, "radius": float(radius)})
+    return cfg.model_copy(update={"camera": new_cam}), {"framing": "auto (object and ground)"}
+
+
+def ground_splats(cfg: RunConfig, sim_scene) -> dict[str, Any] | None:
+    """Static splats drawing the ground as a grey checker floor (render only; not simulated).
+
+    Drawn when ``camera.show_ground`` is on and a surface collider faces up under the
+    object. A square centred below it, of half-side max(1.5 x object size, 1.2 x camera
+    radius), checker cells of a sixth of the object's size (at least three splats wide). Returns ``{means [G,3] m, covs [G,3,3] m^2, colors [G,3],
+    opacities [G]}`` float32 tensors, or None.
+    """
+    import torch
+
+    if not getattr(cfg.camera, "show_ground", True):
+        return None
+    up = _up(cfg)
+    if abs(up[2]) < 0.99:
+        return None
+    lo, hi = _object_box(sim_scene)
+    centre = 0.5 * (lo + hi)
+    ground = _ground_height(cfg, centre, up)
+    if ground is None:
+        return None
+    size = max(float(np.max(hi - lo)), 1e-3)
+    # Wide enough to reach the edges of the view (the camera looks at the object from
+    # ``radius`` away), so the floor does not read as a small mat under a distant camera.
+    half = max(1.5 * size, 1.2 * float(cfg.camera.radius))
+    n = 80
+    step = 2 * half / n
+    g = (np.arange(n) + 0.5) * step - half
+    gx, gy = np.meshgrid(centre[0] + g, centre[1] + g, indexing="ij")
+    z = ground - 0.004 * size
+    means = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], -1)
+    cell = max(size / 6, 3.0 * step)
+    parity = (
+        np.floor((gx.ravel() - centre[0]) / cell) + np.floor((gy.ravel() - centre[1]) / cell)
+    ) % 2
+    colors = np.where(parity[:, None] == 0, [0.80, 0.80, 0.78], [0.66, 0.67, 0.66])
+    sxy = 0.62 * step
+    covs = np.zeros((means.shape[0], 3, 3))
+    covs[:, 0, 0] = covs[:, 1, 1] = sxy**2
+    covs[:, 2, 2] = (0.002 * size) ** 2
+    f32 = torch.float32
+    return {
+        "means": torch.as_tensor(means, dtype=f32),
+        "covs": torch.as_tensor(covs, dtype=f32),
+        "colors": torch.as_tensor(colors, dtype=f32),
+        "opacities": torch.full((means.shape[0],), 0.98, dtype=f32),
+    }
+
+
+def render_view(sim_scene, x, F, camera, background, ground: dict[str, Any] | None = None):
+    """One frame: object splats following particles ``x`` [P,3] m, ``F`` [P,3,3] (+ ground).
+
+    Returns rgb [H, W, 3] float32 in [0, 1] (torch, no autograd needed by callers here).
+    """
+    import torch
+
+    from motionphysics.render.deform import deform_splats
+    from motionphysics.render.rasterize import rasterize
+
+    splats = sim_scene.splats
+    x = torch.as_tensor(x, dtype=torch.float32)
+    F = torch.as_tensor(F, dtype=torch.float32)
+    means, covs, colors = deform_splats(
+        splats, x, F, sim_scene.splat_parent.long(), sim_scene.splat_offset.to(x), camera
+    )
+    opac = splats.opacities.to(x)
+    if ground is not None:
+        means = torch.cat([means, ground["means"]])
+        covs = torch.cat([covs, ground["covs"]])
+        colors = torch.cat([colors.clamp(0, 1), ground["colors"]])
+        opac = torch.cat([opac, ground["opacities"]])
+    return rasterize(means, covs, colors, opac, camera, background).rgb
+
+
+def render_frames(sim_scene, xs, Fs, camera, background, ground, on_frame=None) -> np.ndarray:
+    """Render every frame without autograd: x [T,P,3], F [T,P,3,3] -> uint8 [T, H, W, 3]."""
+    import torch
+
+    out = []
+    with torch.no_grad():
+        for i in range(xs.shape[0]):
+            rgb = render_view(
+                sim_scene,
+                torch.as_tensor(xs[i]),
+                torch.as_tensor(Fs[i]),
+                camera,
+                background,
+                ground,
+            )
+            out.append((np.clip(_np(rgb), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
+            if on_frame is not None:
+                on_frame()
+    return np.stack(out)
+
+
+# --------------------------------------------------------------------------------------
+# the adapters the optimisation loop consumes
+# --------------------------------------------------------------------------------------
+class BridgeSimulator:
+    """The MPM torch bridge behind the optimiser's :class:`~motionphysics.optimize.Simulator`.
+
+    Under ``substeps: auto`` each rollout first re-resolves the substep count from the
+    simulation values it is given (:func:`resolve_substeps`, the same function the
+    forward commands use) and rebuilds the rollout when it changes, reporting the
+    change through ``observer.message`` and in :attr:`changes`.
+    """
+
+    def __init__(self, simulation, num_frames: int, *, cfg=None, cls=None, observer=None):
+        self.simulation = simulation
+        self.num_particles = int(simulation.model.particle_count)
+        self.num_frames = int(num_frames)
+        self._cfg = cfg
+        self._cls = cls
+        self._observer = observer or NullObserver()
+        self.changes: list[tuple[int, int]] = []
+        """(old, new) substep counts, in order, each time the count was re-resolved."""
+
+    @property
+    def substeps(self) -> int:
+        return int(self.simulation.substeps)
+
+    def _retime(self, sim_params) -> None:
+        if self._cfg is None or self._cfg.sim.substeps != "auto":
+            return
+        n = resolve_substeps(self._cfg, self._cls, sim_params, float(self.simulation.model.dx))
+        old = int(self.simulation.substeps)
+        if n != old:
+            self.simulation.substeps = n
+            self.simulation._rollout = None  # the next rollout uses the new count
+            self.changes.append((old, n))
+            self._observer.message(
+                "info",
+                f"substeps re-resolved for the current parameters: {old} -> {n} per frame "
+                "(sim.substeps: auto, CFL limit)",
+            )
+
+    def simulate(self, sim_params, initial_velocity, frames, grad_mode, window):
+        from motionphysics.sim.bridge import simulate
+        from motionphysics.sim.model import PARAM_NAMES
+
+        self._retime(sim_params)
+        params = {k: v for k, v in sim_params.items() if k in PARAM_NAMES}
+        return simulate(
+            self.simulation,
+            params,
+            frames=frames,
+            initial_velocity=initial_velocity,
+            grad_mode=grad_mode,
+            window=window,
+        )
+
+
+class SplatRenderer:
+    """Differentiable frames of the run camera (splats follow the particles, plus the ground).
+
+    ``(xs [S,P,3], Fs [S,P,3,3]) -> rgb [S,H,W,3]`` float32 in [0, 1].
+    """
+
+    def __init__(self, sim_scene, camera, background, ground):
+        self.sim_scene = sim_scene
+        self.camera = camera
+        self.background = background
+        self.ground = ground
+
+    def __call__(self, xs, Fs):
+        import torch
+
+        return torch.stack(
+            [
+                render_view(self.sim_scene, xs[i], Fs[i], self.camera, self.background, self.ground)
+                for i in range(xs.shape[0])
+            ]
+        )
+
+
+# --------------------------------------------------------------------------------------
+# the assembly
+# --------------------------------------------------------------------------------------
+@dataclass
+class Assembly:
+    """Everything a command needs, built once from a config (see :func:`assemble`)."""
+
+    cfg: RunConfig
+    """The config with the camera resolved and the ``material:`` block filled in (what
+    ``run.yaml`` records; ``sim.substeps`` keeps the config's value, ``auto`` included)."""
+    device: str
+    needs_grad: bool
+    sim_scene: Any
+    """scene.prepare.SimScene: splats, particles [P,3] m, volumes [P] m^3, grid."""
+    camera: Any
+    camera_note: dict[str, Any]
+    background: tuple[float, float, float]
+    ground: dict[str, Any] | None
+    """Ground splats (render only) or None."""
+    material: Any
+    """The resolved physical material (catalog.MaterialParams)."""
+    provenance: dict[str, Any]
+    """Where each field came from: backend, sources, clamps, estimate, params file."""
+    resolution: SimResolution
+    observer: Observer = field(default_factory=NullObserver)
+    reference_image: np.ndarray | None = None
+    """uint8 [H, W, 3] rest-state render (when one was made)."""
+    _simulation: Any = field(default=None, repr=False)
+
+    # -- the simulation ----------------------------------------------------------------
+    @property
+    def num_particles(self) -> int:
+        return int(_np(self.sim_scene.particles).shape[0])
+
+    @property
+    def simulation(self):
+        """The :class:`~motionphysics.sim.Simulation` of the resolved material (built once)."""
+        if self._simulation is None:
+            from motionphysics.sim import build_simulation
+
+            self._simulation = build_simulation(
+                self.sim_scene,
+                _pinned(self.cfg, self.resolution.substeps),
+                {"class": self.material.cls, **self.resolution.values},
+                self.device,
+                requires_grad=self.needs_grad,
+            )
+        return self._simulation
+
+    def with_material(self, material) -> Assembly:
+        """The same scene and camera with another material (resolved the same way)."""
+        res = resolve_simulation(material, self.cfg, self.sim_scene)
+        return replace(self, material=material, resolution=res, _simulation=None)
+
+    def to_sim(self, physical: Mapping[str, Any]) -> dict[str, Any]:
+        """Physical values (density included; tensors or floats) -> simulation values
+        (differentiable; :func:`sim_values` in the resolved map context)."""
+        return sim_values(physical, self.material.cls, self.resolution.context)
+
+    def simulate(self, frames: int | None = None, st=None, *, material=None, cfg=None):
+        """Forward rollout -> (x [T,P,3], F [T,P,3,3], v [T,P,3] float32, substeps).
+
+        ``material`` / ``cfg`` (e.g. a fitted initial velocity) replace the assembly's;
+        the simulation context is resolved again for them by the same functions.
+        """
+        cfg = cfg or self.cfg
+        mat = material or self.material
+        res = self.resolution if material is None else resolve_simulation(mat, cfg, self.sim_scene)
+        return simulate_forward(
+            self.sim_scene,
+            cfg,
+            mat,
+            res.values,
+            self.device,
+            int(frames or cfg.sim.frames),
+            st or _NullHandle(),
+            self.observer,
+        )
+
+    def render(self, xs, Fs, on_frame=None) -> np.ndarray:
+        """uint8 frames [T, H, W, 3] of the run camera for states x [T,P,3], F [T,P,3,3]."""
+        return render_frames(
+            self.sim_scene, xs, Fs, self.camera, self.background, self.ground, on_frame
+        )
+
+    # -- adapters for the optimisation loop --------------------------------------------
+    def simulator(self, num_frames: int | None = None) -> BridgeSimulator:
+        """Differentiable simulator (needs ``needs_grad=True``)."""
+        if not self.needs_grad:
+            raise RuntimeError("assemble(..., needs_grad=True) is required for a simulator")
+        return BridgeSimulator(
+            self.simulation,
+            int(num_frames or self.cfg.sim.frames),
+            cfg=self.cfg,
+            cls=self.material.cls,
+            observer=self.observer,
+        )
+
+    def renderer(self) -> SplatRenderer:
+        """Differentiable renderer of the run camera."""
+        return SplatRenderer(self.sim_scene, self.camera, self.background, self.ground)
+
+
+def _render_reference(sim_scene, camera, background, ground) -> np.ndarray:
+    import torch
+
+    P = int(_np(sim_scene.particles).shape[0])
+    with torch.no_grad():
+        ref = render_view(
+            sim_scene, sim_scene.particles, torch.eye(3).expand(P, 3, 3), camera, background, ground
+        )
+    return (np.clip(_np(ref), 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def scene_record(cfg: RunConfig, sim_scene) -> dict[str, Any]:
+    """The ``scene`` block of ``params.json``."""
+    return {
+        "source": cfg.scene.source,
+        "splats": int(sim_scene.splats.num),
+        "particles": int(_np(sim_scene.particles).shape[0]),
+        "interior_particles": int(getattr(sim_scene, "n_interior", 0)),
+        "domain_lo": [float(v) for v in _np(sim_scene.domain_lo)],
+        "domain_hi": [float(v) for v in _np(sim_scene.domain_hi)],
+        "dx": float(sim_scene.dx),
+        "grid_dims": [int(v) for v in sim_scene.grid_dims],
+    }
+
+
+def assemble(
+    cfg: RunConfig,
+    device: str = "cpu",
+    needs_grad: bool = False,
+    *,
+    init_backend: str = "kb",
+    params_file: Mapping[str, Any] | None = None,
+    estimate: bool = True,
+    reference_image: bool = True,
+    stage: Callable[..., Any] | None = None,
+    observer: Observer | None = None,
+    announce: bool = False,
+    config_origin: str = "<config>",
+    on_scene: Callable[[Any], None] | None = None,
+    on_camera: Callable[[RunConfig, dict[str, Any], np.ndarray | None], None] | None = None,
+) -> Assembly:
+    """Build the parts of a run from ``cfg``.
+
+    Stages (each run inside ``stage(name)``, a context manager factory such as
+    :meth:`motionphysics.io.writer.RunWriter.stage`): ``load scene``, ``reference
+    render``, ``estimate material`` (only when the material is incomplete and
+    ``estimate``), ``resolve material``.
+
+    ``params_file``: the mapping of :func:`motionphysics.runconfig.read_params_file`.
+    ``estimate=False``: the material comes from the config (and ``params_file``)
+    alone; a missing class is a user error (``fit``). ``reference_image=False`` skips
+    the rest-state render unless the estimate needs it. ``on_scene(sim_scene)`` and
+    ``on_camera(cfg, note, image)`` are called as soon as those exist (the writer
+    records them).
+    """
+    from motionphysics.init import INIT_BACKENDS
+
+    INIT_BACKENDS.check(init_backend)
+    stage = stage or _null_stage
+    observer = observer or NullObserver()
+    with stage("load scene"):
+        from motionphysics.scene import load_scene
+        from motionphysics.scene.prepare import prepare
+
+        scene = load_scene(cfg.scene.source)
+        sim_scene = prepare(scene, cfg.scene, cfg.sim, list(cfg.boundary_conditions))
+        observer.message(
+            "info",
+            f"scene: {sim_scene.splats.num} splats, {int(_np(sim_scene.particles).shape[0])} "
+            "particles",
+        )
+        if on_scene is not None:
+            on_scene(sim_scene)
+
+    need_estimate = estimate and params_file is None and not material_complete(cfg)
+    ref_np = None
+    with stage("reference render"):
+        from motionphysics.render.camera import camera_from_config
+
+        cfg, cam_note = resolve_camera(cfg, sim_scene)
+        camera = camera_from_config(cfg.camera)
+        background = tuple(float(v) for v in cfg.camera.background)
+        ground = ground_splats(cfg, sim_scene)
+        if reference_image or need_estimate:
+            ref_np = _render_reference(sim_scene, camera, background, ground)
+        if on_camera is not None:
+            on_camera(cfg, cam_note, ref_np)
+
+    est = None
+    if need_estimate:
+        with stage("estimate material"):
+            est = estimate_material(cfg.prompt, ref_np, init_backend, announce=announce)
+            observer.message("info", f"estimate ({init_backend}): {est['class']}")
+    with stage("resolve material"):
+        res = resolve_material(cfg, est, params_file)
+        material = res["material"]
+        resolution = resolve_simulation(material, cfg, sim_scene)
+        backend = "params file" if params_file is not None else est["backend"] if est else "config"
+        provenance = {
+            "backend": backend,
+            "params_file": params_file.get("origin") if params_file is not None else None,
+            "raw_answer": est.get("raw") if est else None,
+            "estimate": est.get("estimate") if est else None,
+            "clamps": res["clamps"],
+            "estimate_clamps": est.get("clamps", []) if est else [],
+            "overrides": res["overrides"],
+            "class_override": res["class_override"],
+            "sources": res["sources"],
+        }
+        # The config records the material that is simulated (before any optimisation),
+        # so re-running run.yaml reproduces the run.
+        mat_block = {
+            "class": material.cls,
+            "density": float(material.density),
+            **{k: float(v) for k, v in material.values.items()},
+        }
+        cfg = config_from_dict({**config_to_dict(cfg), "material": mat_block}, config_origin)
+    return Assembly(
+        cfg=cfg,
+        device=device,
+        needs_grad=needs_grad,
+        sim_scene=sim_scene,
+        camera=camera,
+        camera_note=cam_note,
+        background=background,
+        ground=ground,
+        material=material,
+        provenance=provenance,
+        resolution=resolution,
+        observer=observer,
+        reference_image=ref_np,
+    )

@@ -1,0 +1,652 @@
+"""The one run-directory writer behind ``run``, ``simulate`` and ``fit``.
+
+A :class:`RunWriter` owns a :class:`~motionphysics.io.rundir.RunDirectory` (every
+file written atomically) and the ``params.json`` state of the run:
+
+- :meth:`RunWriter.begin` writes ``run.yaml`` and ``params.json`` (``partial: true``);
+- :meth:`RunWriter.stage` times a stage in the progress display, tells the observer,
+  and rewrites ``params.json`` on entry and exit, so a run killed at any point leaves
+  a directory that says how far it got;
+- the ``record_*`` / ``write_*`` methods fill the state and write the outputs:
+  ``scene.ply`` (the prepared rest splats, INRIA layout), ``plots/reference.png``,
+  ``video.mp4``, ``trajectory.npz``, ``metrics.json``, ``plots/``;
+- :meth:`RunWriter.finish` writes ``report.html`` and the final ``params.json``
+  (``partial: false``); :meth:`RunWriter.guard` turns Ctrl-C and errors into a
+  consistent partial directory (``status: interrupted`` / ``failed``).
+
+``params.json`` has one schema (:data:`PARAMS_SCHEMA`, key set :data:`PARAMS_KEYS`)
+for every command; a key that does not apply to a command is ``null`` (``reference``
+and ``fit`` outside ``fit``; ``optimise`` when nothing was optimised). The summary a
+command prints is :func:`summary_text` of the result, the same for every command.
+
+This module writes files; it runs no simulation and renders nothing (the assembly
+does) and must not import ``motionphysics.pipeline``, ``motionphysics.commands`` or
+``motionphysics.optimize``.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from motionphysics.errors import RunInterrupted
+from motionphysics.events import NullObserver, Observer
+
+__all__ = [
+    "PARAMS_KEYS",
+    "PARAMS_SCHEMA",
+    "UNITS",
+    "RunResult",
+    "RunWriter",
+    "format_value",
+    "print_summary",
+    "summary_text",
+]
+
+PARAMS_SCHEMA = "motionphysics.params/1"
+PARAMS_KEYS = (
+    "schema",
+    "command",
+    "prompt",
+    "partial",
+    "status",
+    "stage",
+    "error",
+    "seed",
+    "device",
+    "versions",
+    "scene",
+    "camera",
+    "class",
+    "class_id",
+    "density",
+    "params",
+    "units",
+    "sim",
+    "sim_context",
+    "provenance",
+    "initial",
+    "history",
+    "optimise",
+    "reference",
+    "fit",
+    "metrics",
+    "plots",
+    "files",
+    "timings",
+    "wall_time_s",
+)
+"""Every ``params.json`` holds exactly these keys (README, "params.json")."""
+
+
+UNITS = {
+    "density": "kg/m^3",
+    "E": "Pa",
+    "nu": "-",
+    "tau_Y": "Pa",
+    "eta": "-",
+    "theta_fric": "deg",
+    "mu": "Pa s",
+    "kappa": "Pa",
+    "n": "-",
+}
+"""SI unit of each physical parameter (``params.json``: ``units``)."""
+
+
+def _np(a) -> np.ndarray:
+    if hasattr(a, "detach"):
+        return a.detach().cpu().numpy()
+    return np.asarray(a)
+
+
+@dataclass
+class RunResult:
+    run_dir: Path
+    params: dict[str, Any]
+    metrics: dict[str, Any] | None
+    timings: dict[str, float]
+    video: Path | None
+    config: Any
+    files: list[str] = field(default_factory=list)
+
+
+@contextmanager
+def _no_sigint():
+    """Hold Ctrl-C off while the final bookkeeping of an interrupted run is written."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _fps(frame_dt: float) -> float:
+    return max(1.0, min(60.0, 1.0 / frame_dt))
+
+
+def versions() -> dict[str, str]:
+    from motionphysics.runconfig import versions as _versions
+
+    return _versions()
+
+
+class RunWriter:
+    """Writes one run directory (see the module docstring).
+
+    Parameters
+    ----------
+    out: the run directory.
+    command: ``run`` | ``simulate`` | ``fit`` (recorded as ``command``).
+    resume, force: as :class:`~motionphysics.io.rundir.RunDirectory`.
+    progress: a :class:`~motionphysics.progress.Progress` (timings, display).
+    observer: told about stages and the end of the run.
+    """
+
+    def __init__(
+        self,
+        out: str | Path,
+        *,
+        command: str,
+        resume: bool = False,
+        force: bool = False,
+        progress=None,
+        observer: Observer | None = None,
+    ):
+        from motionphysics.io.rundir import RunDirectory
+        from motionphysics.progress import Progress
+
+        self.rd = RunDirectory(out, resume=resume, force=force)
+        self.path = self.rd.path
+        self.command = command
+        self.progress = progress or Progress(quiet=True)
+        self.observer = observer or NullObserver()
+        self.files: list[str] = []
+        self.metrics: dict[str, Any] | None = None
+        self.plots: list[str] = []
+        self.cfg = None
+        self._t0 = time.perf_counter()
+        self.state: dict[str, Any] = {k: None for k in PARAMS_KEYS}
+
+    # -- lifecycle -----------------------------------------------------------------------
+    def begin(self, cfg, *, seed: int, device: str, **extra: Any) -> None:
+        """Write ``run.yaml`` and a first ``params.json`` (``partial: true``)."""
+        self.state.update(
+            {
+                "schema": PARAMS_SCHEMA,
+                "command": self.command,
+                "prompt": cfg.prompt,
+                "partial": True,
+                "status": "running",
+                "stage": "start",
+                "seed": int(seed),
+                "device": device,
+                "versions": versions(),
+                "history": [],
+                "plots": [],
+                "files": [],
+                "timings": {},
+                **extra,
+            }
+        )
+        self.observer.run_started(self.command, str(self.path))
+        self.save_config(cfg)
+        self.save()
+
+    def save(self) -> None:
+        """Rewrite ``params.json`` from the current state."""
+        self.state["timings"] = dict(self.progress.timings)
+        self.state["files"] = list(self.files)
+        self.rd.write_json("params.json", self.state)
+
+    def save_config(self, cfg) -> None:
+        """Rewrite ``run.yaml``: the fully resolved config plus the package versions."""
+        from motionphysics.config import config_to_dict
+
+        self.cfg = cfg
+        data = config_to_dict(cfg)
+        data["versions"] = versions()
+        self.rd.write_yaml("run.yaml", data)
+        self._add("run.yaml", "params.json")
+
+    def _add(self, *names: str) -> None:
+        for n in names:
+            if n not in self.files:
+                self.files.append(n)
+
+    @contextmanager
+    def stage(self, name: str, total: int | None = None) -> Iterator[Any]:
+        """A timed stage: ``params.json`` says which stage a killed run was in."""
+        self.state["stage"] = name
+        self.save()
+        self.observer.stage_started(name, total)
+        t0 = time.perf_counter()
+        with self.progress.stage(name, total) as st:
+            yield _ObservedStage(st, name, total, self.observer)
+        self.observer.stage_finished(name, time.perf_counter() - t0)
+        self.save()
+
+    @contextmanager
+    def guard(self) -> Iterator[RunWriter]:
+        """Ctrl-C -> ``status: interrupted`` (RunInterrupted); an error -> ``failed``."""
+        try:
+            yield self
+        except KeyboardInterrupt:
+            with _no_sigint():
+                self.state["status"] = "interrupted"
+                self.state["partial"] = True
+                self.save()
+                self._report()
+            self.observer.run_finished("interrupted")
+            raise RunInterrupted(
+                f"interrupted during '{self.state['stage']}'; {self.path} holds a partial run "
+                "(params.json: partial: true); rerun with --resume or --force"
+            ) from None
+        except BaseException as err:
+            self.fail(err)
+            raise
+
+    def fail(self, err: BaseException) -> None:
+        """Record a failure in ``params.json`` (the original error matters more)."""
+        with _no_sigint():
+            self.state["status"] = "failed"
+            self.state["partial"] = True
+            text = (
+                f"{type(err).__name__}: {err}".splitlines()[0] if str(err) else type(err).__name__
+            )
+            self.state["error"] = text
+            try:
+                self.save()
+            except Exception:  # noqa: BLE001 - keep the original error
+                pass
+        self.observer.run_finished("failed", {"error": self.state["error"]})
+
+    def finish(self, status: str = "complete") -> RunResult:
+        """Final ``params.json`` (``partial: false``) and ``report.html``; the result."""
+        self.state["partial"] = False
+        self.state["status"] = status
+        self.state["stage"] = "done"
+        self.state["plots"] = list(self.plots)
+        self.state["wall_time_s"] = time.perf_counter() - self._t0
+        self.save()
+        self._report()
+        self._add("report.html")
+        self.save()
+        result = RunResult(
+            self.path,
+            dict(self.state),
+            self.metrics,
+            dict(self.progress.timings),
+            self.path / "video.mp4" if "video.mp4" in self.files else None,
+            self.cfg,
+            list(self.files),
+        )
+        self.observer.run_finished(status, self.state)
+        return result
+
+    def _report(self) -> None:
+        from motionphysics.io.report import write_report
+
+        write_report(
+            self.rd,
+            self.state,
+            prompt=self.state.get("prompt") or "",
+            timings=self.state.get("timings"),
+            metrics=self.metrics,
+            video="video.mp4",
+            plots=list(self.plots),
+            title=f"motionphysics {self.command}",
+        )
+
+    # -- what a run records ------------------------------------------------------------
+    def record_scene(self, cfg, sim_scene) -> None:
+        """``scene`` block of params.json and ``scene.ply`` (prepared rest splats)."""
+        from motionphysics.scene.ply import write_ply
+
+        self.state["scene"] = {
+            "source": cfg.scene.source,
+            "splats": int(sim_scene.splats.num),
+            "particles": int(_np(sim_scene.particles).shape[0]),
+            "interior_particles": int(getattr(sim_scene, "n_interior", 0)),
+            "domain_lo": [float(v) for v in _np(sim_scene.domain_lo)],
+            "domain_hi": [float(v) for v in _np(sim_scene.domain_hi)],
+            "dx": float(sim_scene.dx),
+            "grid_dims": [int(v) for v in sim_scene.grid_dims],
+        }
+        with self.rd.writing("scene.ply") as tmp:
+            write_ply(sim_scene.splats, tmp)
+        self._add("scene.ply")
+
+    def record_camera(self, cfg, note: Mapping[str, Any], image: np.ndarray | None) -> None:
+        """``camera`` block, ``plots/reference.png`` (uint8 [H,W,3]) and run.yaml."""
+        from motionphysics.config import config_to_dict
+
+        self.state["camera"] = {**note, **config_to_dict(cfg)["camera"]}
+        if image is not None:
+            self.write_png("plots/reference.png", image)
+            if "plots/reference.png" not in self.plots:
+                self.plots.insert(0, "plots/reference.png")
+        self.save_config(cfg)
+
+    def record_material(
+        self, material, sim_values: Mapping[str, Any], sim_context: Mapping[str, Any]
+    ) -> None:
+        """``class``, ``density``, ``params``, ``units``, ``sim``, ``sim_context``."""
+        from motionphysics.materials.catalog import class_id
+
+        def j(v):
+            a = _np(v).astype(np.float64)
+            if a.ndim == 0:
+                return float(a)
+            return {"mean": float(a.mean()), "min": float(a.min()), "max": float(a.max())}
+
+        self.state.update(
+            {
+                "class": material.cls,
+                "class_id": int(class_id(material.cls)),
+                "density": j(material.density),
+                "params": {k: j(v) for k, v in material.values.items()},
+                "units": {k: UNITS.get(k, "") for k in ("density", *material.values)},
+                "sim": {k: j(v) for k, v in sim_values.items()},
+                "sim_context": dict(sim_context),
+            }
+        )
+
+    # -- files ---------------------------------------------------------------------------
+    def write_png(self, name: str, img: np.ndarray) -> None:
+        """An RGB uint8 image [H, W, 3] as PNG."""
+        from PIL import Image
+
+        with self.rd.writing(name) as tmp:
+            Image.fromarray(img).save(tmp, format="PNG")
+        self._add(name)
+
+    def write_video(self, video: np.ndarray, frame_dt: float) -> None:
+        """``video.mp4`` from uint8 frames [T, H, W, 3] at 1 / frame_dt fps (1-60)."""
+        from motionphysics.io.video import write_video
+
+        with self.rd.writing("video.mp4") as tmp:
+            write_video(video, tmp, _fps(frame_dt))
+        self._add("video.mp4")
+
+    def write_trajectory(self, sim_scene, xs, Fs, vs, cfg, density) -> dict[str, np.ndarray]:
+        """``trajectory.npz`` (x, t, F, v, masses, volumes, and what re-deforming the
+        splats of ``scene.ply`` needs: splat_parent, splat_offset); returns it read back."""
+        from motionphysics.io.rundir import read_trajectory, write_trajectory
+
+        frames = xs.shape[0]
+        volumes = np.asarray(_np(sim_scene.volumes), dtype=np.float64)
+        mass = volumes * np.asarray(_np(density), dtype=np.float64)
+        write_trajectory(
+            self.rd.file("trajectory.npz"),
+            x=xs,
+            t=np.arange(frames, dtype=np.float64) * cfg.sim.frame_dt,
+            F=Fs,
+            v=vs,
+            mass=mass.astype(np.float32),
+            volume=volumes.astype(np.float32),
+            gravity=np.asarray(cfg.sim.gravity, dtype=np.float32),
+            n_visible=np.int64(xs.shape[1] - int(getattr(sim_scene, "n_interior", 0))),
+            splat_parent=_np(sim_scene.splat_parent).astype(np.int64),
+            splat_offset=_np(sim_scene.splat_offset).astype(np.float32),
+            domain_lo=_np(sim_scene.domain_lo).astype(np.float32),
+            domain_hi=_np(sim_scene.domain_hi).astype(np.float32),
+            dx=np.float32(sim_scene.dx),
+            frame_dt=np.float32(cfg.sim.frame_dt),
+        )
+        self._add("trajectory.npz")
+        return read_trajectory(self.path / "trajectory.npz")
+
+    def write_metrics(self, traj: Mapping[str, np.ndarray]) -> dict[str, Any]:
+        """Physical diagnostics -> ``metrics.json``; the headline values go to params.json."""
+        metrics = write_metrics(self.rd, traj)
+        self.metrics = metrics
+        self.state["metrics"] = {
+            k: metrics[k]
+            for k in ("final_height_ratio", "spread_ratio", "max_displacement")
+            if k in metrics
+        }
+        self._add("metrics.json")
+        return metrics
+
+    def write_outputs(self, sim_scene, xs, Fs, vs, video, cfg, material) -> dict[str, Any]:
+        """trajectory.npz, metrics.json and every plot; returns the metrics."""
+        traj = self.write_trajectory(sim_scene, xs, Fs, vs, cfg, material.density)
+        metrics = self.write_metrics(traj)
+        self.write_plots(video, traj, metrics, cfg)
+        return metrics
+
+    def write_plots(self, video: np.ndarray, traj, metrics, cfg) -> list[str]:
+        """Space-time slices, energy, shape, volume; loss and parameters when optimised."""
+        from motionphysics.io.plots import plot_loss, plot_params, plot_series, space_time_slice
+
+        new: list[str] = []
+        row, col = _object_row_col(video[0], cfg.camera.background)
+        space_time_slice(
+            video,
+            self.rd.file("plots/slice_row.png"),
+            axis="row",
+            index=row,
+            frame_dt=cfg.sim.frame_dt,
+            title=f"space-time slice, pixel row {row}",
+        )
+        space_time_slice(
+            video,
+            self.rd.file("plots/slice_col.png"),
+            axis="col",
+            index=col,
+            frame_dt=cfg.sim.frame_dt,
+            title=f"space-time slice, pixel column {col}",
+        )
+        space_time_slice(
+            video,
+            self.rd.file("plots/slice.png"),
+            frame_dt=cfg.sim.frame_dt,
+            title="space-time slice",
+        )
+        new += ["plots/slice_row.png", "plots/slice_col.png", "plots/slice.png"]
+        t = traj["t"]
+        plot_series(
+            {
+                "kinetic": metrics["kinetic_energy"],
+                "potential (rel. frame 0)": metrics["potential_energy"],
+                "total": metrics["total_energy"],
+            },
+            t,
+            self.rd.file("plots/energy.png"),
+            ylabel="energy [J]",
+            title="energy",
+        )
+        plot_series(
+            {
+                "height / initial": np.asarray(metrics["height"])
+                / max(metrics["initial_height"], 1e-9),
+                "spread / initial": np.asarray(metrics["spread"]) / max(metrics["spread"][0], 1e-9),
+            },
+            t,
+            self.rd.file("plots/shape.png"),
+            ylabel="ratio",
+            title="height and spread",
+        )
+        new += ["plots/energy.png", "plots/shape.png"]
+        if "volume_ratio" in metrics:
+            vr = metrics["volume_ratio"]
+            plot_series(
+                {"mean det F": vr["mean"], "min": vr["min"], "max": vr["max"]},
+                t,
+                self.rd.file("plots/volume.png"),
+                ylabel="det F",
+                title="volume ratio",
+            )
+            new.append("plots/volume.png")
+        history = self.state.get("history") or []
+        if history:
+            records = _plot_records(history)
+            try:
+                plot_loss(records, self.rd.file("plots/loss.png"))
+                new.append("plots/loss.png")
+            except ValueError:
+                pass
+            ranges = self.state.get("param_ranges_") or _ranges(self.state)
+            try:
+                plot_params(records, ranges, self.rd.file("plots/params.png"))
+                new.append("plots/params.png")
+            except ValueError:
+                pass
+        for n in new:
+            if n not in self.plots:
+                self.plots.append(n)
+        self._add("plots/")
+        return new
+
+    def export_splats(self, sim_scene, xs, Fs, on_frame=None) -> None:
+        """``splats/frame_XXXX.ply`` for every frame (``--export-ply``)."""
+        from motionphysics.io.export import export_splats
+
+        export_splats(sim_scene, xs, Fs, self.path / "splats", on_frame=on_frame)
+        self._add("splats/")
+
+
+class _ObservedStage:
+    """A progress stage handle that also tells the observer how far the stage got."""
+
+    def __init__(self, st, name: str, total: int | None, observer: Observer):
+        self._st, self.name, self.total, self._observer = st, name, total, observer
+        self.done = 0
+
+    def advance(self, n: int = 1) -> None:
+        self.done += int(n)
+        self._st.advance(n)
+        self._observer.stage_advanced(self.name, self.done, self.total)
+
+    def note(self, text: str) -> None:
+        self._st.note(text)
+
+    def set_total(self, total: int) -> None:
+        self.total = int(total)
+        self._st.set_total(total)
+
+
+def write_metrics(rd, traj: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Physical diagnostics of ``traj`` -> ``metrics.json`` (flat keys; see metrics.physical)."""
+    from motionphysics.metrics.physical import physical_metrics
+
+    metrics = {"schema": "motionphysics.metrics/1", **physical_metrics(traj)}
+    rd.write_json("metrics.json", metrics)
+    return metrics
+
+
+def _object_row_col(frame0: np.ndarray, background) -> tuple[int, int]:
+    """Pixel row and column through the middle of the object in frame 0 (not background)."""
+    bg = np.asarray(background, dtype=np.float32) * 255.0
+    diff = np.abs(frame0.astype(np.float32) - bg).sum(-1) > 24
+    if not diff.any():
+        return frame0.shape[0] // 2, frame0.shape[1] // 2
+    rows, cols = np.nonzero(diff)
+    return int(np.median(rows)), int(np.median(cols))
+
+
+def _plot_records(history: list[dict]) -> list[dict]:
+    """History records with per-particle values reduced to their mean (for the plots)."""
+    out = []
+    for r in history:
+        params = {}
+        for n, v in (r.get("params") or {}).items():
+            if isinstance(v, dict):
+                v = v.get("mean")
+            if isinstance(v, (int, float)):
+                params[n] = v
+        out.append({"iteration": r.get("iteration"), "loss": r.get("loss"), "params": params})
+    return out
+
+
+def _ranges(state: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+    """Handbook ranges of the optimised (or all) parameters of the state's class."""
+    from motionphysics.materials.catalog import spec
+
+    opt = state.get("fit") or state.get("optimise") or {}
+    names = opt.get("optimised") or list(state.get("params") or {})
+    out = {}
+    for n in names:
+        if n == "density" or n == "initial_velocity":
+            continue
+        s = spec(state["class"], n)
+        out[n] = (float(s.low), float(s.high))
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# the summary
+# --------------------------------------------------------------------------------------
+def format_value(v: Any) -> str:
+    """A number as the summary prints it: ``0.3``, ``1000``, ``1.000e+07`` (mean of a field)."""
+    if isinstance(v, dict):
+        return f"{format_value(v.get('mean'))} (mean)"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(format_value(x) for x in v) + "]"
+    v = float(v)
+    a = abs(v)
+    return f"{v:.4g}" if (a == 0 or 1e-3 <= a < 1e5) else f"{v:.3e}"
+
+
+def summary_text(result: RunResult) -> str:
+    """The final summary every command prints: material, parameters, video, timings."""
+    p = result.params
+    lines = [f"prompt:    {p.get('prompt', '')}"]
+    prov = p.get("provenance") or {}
+    lines.append(f"material:  {p.get('class')} (from {prov.get('backend', '?')})")
+    sim = p.get("sim") or {}
+    units = p.get("units") or {}
+    initial = (p.get("initial") or {}).get("params") or {}
+    for name, value in {"density": p.get("density"), **(p.get("params") or {})}.items():
+        s = f"  {name:<10} {format_value(value):>12} {units.get(name, ''):<6}"
+        if name in sim:
+            s += f"  (simulation: {format_value(sim[name])})"
+        if name in initial:
+            s += f"  start {format_value(initial[name])}"
+        src = (prov.get("sources") or {}).get(name)
+        if src:
+            s += f"  [{src}]"
+        lines.append(s)
+    for c in prov.get("clamps") or []:
+        lines.append(
+            f"  clamped {c['field']}: {format_value(c['original'])} -> {format_value(c['clamped'])}"
+        )
+    opt = p.get("fit") or p.get("optimise")
+    if opt:
+        label = "fit:      " if p.get("fit") else "optimise: "
+        lines.append(
+            f"{label} {opt.get('message', '')} ({opt.get('loss', '?')}, grad_mode "
+            f"{opt.get('grad_mode', '?')})"
+        )
+    m = result.metrics or {}
+    if m:
+        lines.append(
+            f"motion:    final height/initial {m.get('final_height_ratio', float('nan')):.3f}, "
+            f"spread ratio {m.get('spread_ratio', float('nan')):.3f}, "
+            f"max displacement {m.get('max_displacement', float('nan')):.3f} m"
+        )
+    lines.append(f"video:     {result.run_dir / 'video.mp4'}")
+    lines.append(f"report:    {result.run_dir / 'report.html'}")
+    lines.append("timings:")
+    total = 0.0
+    for k, v in result.timings.items():
+        lines.append(f"  {k:<18} {v:8.2f} s")
+        total += v
+    lines.append(f"  {'total':<18} {total:8.2f} s")
+    return "\n".join(lines)
+
+
+def print_summary(result: RunResult, stream=None) -> None:
+    print(summary_text(result), file=stream or sys.stdout)
