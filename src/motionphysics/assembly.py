@@ -68,7 +68,6 @@ AUTO_MAP_SUBSTEPS = 512
 the map must not depend on the substep count it is used to choose."""
 
 
-
 def _np(a) -> np.ndarray:
     if hasattr(a, "detach"):
         return a.detach().cpu().numpy()

@@ -51,6 +51,7 @@ RUN_FILES = (
     "metrics.json",
     "checkpoint.pt",
     "report.html",
+    "scene.ply",
 )
 """Files a run writes (the ones ``--force`` may delete)."""
 RUN_DIRS = ("splats", "plots")

@@ -3,7 +3,7 @@ schedule, checkpoint and resume, ``log.jsonl``.
 
 Public API: :func:`optimize` runs a :class:`Problem` (parameters, simulator, renderer,
 loss) and returns an :class:`OptimizeResult`. Nothing is imported from the simulator
-or the renderer here; a problem receives them from its builder (``commands.fit``).
+or the renderer here; a problem receives them from its builder (:mod:`.fit`, through the assembly).
 """
 
 from motionphysics.optimize.boosting import frames_for_iteration, subsequences

@@ -52,6 +52,8 @@ class Checkpoint:
     message: str = ""
     fingerprint: str = ""
     """Hash of the problem and the optimisation config the run started with."""
+    loss_states: list[dict[str, Any]] = field(default_factory=list)
+    """``state_dict()`` of each configured loss, in order (e.g. a learnable extractor)."""
 
 
 def capture_rng(generator: torch.Generator) -> dict[str, Any]:
@@ -85,6 +87,7 @@ def save_checkpoint(ckpt: Checkpoint, path: str | Path) -> None:
         "stop_reason": ckpt.stop_reason,
         "message": ckpt.message,
         "fingerprint": ckpt.fingerprint,
+        "loss_states": list(ckpt.loss_states),
     }
     with atomic_write(path, "wb") as fh:
         torch.save(payload, fh)
@@ -117,4 +120,5 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         stop_reason=data["stop_reason"],
         message=data.get("message", ""),
         fingerprint=data.get("fingerprint", ""),
+        loss_states=list(data.get("loss_states") or []),
     )

@@ -135,6 +135,9 @@ def optimize(
     resume: bool = False,
     fingerprint: str = "",
     progress: Callable[[dict[str, Any]], None] | None = None,
+    observer: Any = None,
+    extras: dict[str, Any] | None = None,
+    losses: Any = None,
 ) -> OptimizeResult:
     """Run (or continue) the optimisation of ``problem``; see the module docstring.
 
@@ -142,6 +145,12 @@ def optimize(
     fingerprint: identifies the problem and config; resuming a checkpoint with a
     different fingerprint is refused.
     progress: called with each iteration's record.
+    observer: an :class:`~motionphysics.events.Observer`; told ``iteration_done``.
+    extras: put in every :class:`LossContext` (``prompt``, ``prior``: what a
+    prior-driven loss reads).
+    losses: objects with ``state_dict()`` / ``load_state_dict()`` (the configured
+    losses) whose state goes into ``checkpoint.pt`` and comes back on resume; default
+    ``problem.loss``.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -167,6 +176,7 @@ def optimize(
         [{"params": [theta[n]], "lr": cfg.lr, "name": n} for n in names], lr=cfg.lr, eps=ADAM_EPS
     )
     start, history, calm = 0, [], 0
+    stateful = list(losses) if losses is not None else [problem.loss]
 
     if resume and ckpt_path.exists():
         ck = load_checkpoint(ckpt_path)
@@ -186,6 +196,9 @@ def optimize(
             for n in names:
                 theta[n].copy_(ck.theta[n])
         opt.load_state_dict(ck.optimizer)
+        for i, state in enumerate(ck.loss_states or []):
+            if i < len(stateful) and state:
+                stateful[i].load_state_dict(state)
         restore_rng(ck.rng, generator)
         start, history, calm = ck.next_iteration, ck.history, ck.calm
         _truncate_log(log_path, start)
@@ -223,7 +236,10 @@ def optimize(
             pred = problem.forward(theta, frames, cfg.grad_mode, cfg.window, timings)
             t0 = time.perf_counter()
             loss = problem.loss(
-                pred, LossContext(iteration=it, num_frames=num_frames, rng=generator)
+                pred,
+                LossContext(
+                    iteration=it, num_frames=num_frames, rng=generator, extras=dict(extras or {})
+                ),
             )
             loss_value = float(loss.detach())
             timings["loss"] = time.perf_counter() - t0
@@ -253,6 +269,11 @@ def optimize(
             "grad_norm": {k: _finite(v) for k, v in grad_norm.items()},
             "lr": lrs,
         }
+        substeps = getattr(problem.simulator, "substeps", None)
+        if substeps is not None:
+            # Under ``substeps: auto`` the simulator re-resolves the count for the
+            # parameters of this iteration (logged, so a change is visible).
+            record["substeps"] = int(substeps)
         if stop_reason is None and not (
             math.isfinite(loss_value) and math.isfinite(grad_norm["total"])
         ):
@@ -278,6 +299,7 @@ def optimize(
                     "nan",
                     message,
                     fingerprint,
+                    [lo.state_dict() for lo in stateful],
                 ),
                 ckpt_path,
             )
@@ -314,11 +336,14 @@ def optimize(
                 stop_reason,
                 message,
                 fingerprint,
+                [lo.state_dict() for lo in stateful],
             ),
             ckpt_path,
         )
         if progress is not None:
             progress(record)
+        if observer is not None:
+            observer.iteration_done(it, record)
         if stop_reason is not None:
             break
 

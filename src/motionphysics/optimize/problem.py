@@ -156,7 +156,9 @@ class Problem:
         return {n: (out[n] if n in self.per_particle else out[n][0]) for n in names}
 
     def all_physical(self, theta: dict[str, Tensor]) -> dict[str, Tensor]:
-        values = {k: torch.tensor(v, dtype=torch.float32) for k, v in self.fixed.items()}
+        # float64: a fixed value (nu = 0.3) must reach the sim map exactly as a forward
+        # command gives it, or the two would simulate different materials.
+        values = {k: torch.tensor(v, dtype=torch.float64) for k, v in self.fixed.items()}
         values.update(self.physical(theta))
         return values
 

@@ -172,9 +172,10 @@ def run_case(
     """
     import numpy as np
 
-    from motionphysics.commands.fit import Reference, build_fit, prepare_simulation
+    from motionphysics.assembly import assemble
     from motionphysics.config import config_from_dict
     from motionphysics.materials.simmap import physical_to_sim, sim_to_physical
+    from motionphysics.optimize.fit import Reference, build_fit
     from motionphysics.optimize.loop import optimize
 
     case = CASES[case] if isinstance(case, str) else case
@@ -182,11 +183,11 @@ def run_case(
     if iterations is not None:
         extra["iterations"] = int(iterations)
     true_cfg = config_from_dict(case_config(case, case.true, size, **extra), f"sysid:{case.name}")
-    parts = prepare_simulation(true_cfg, requires_grad=False)
+    parts = assemble(true_cfg, estimate=False, reference_image=False)
     xs, _ = parts.simulation.run()
     digest = hashlib.sha256(np.ascontiguousarray(xs).tobytes()).hexdigest()
     reference = Reference("trajectory", xs, f"synthetic:{case.name}", digest)
-    ctx = parts.sim_context
+    ctx = parts.resolution.context
     true_sim = {k: float(v) for k, v in physical_to_sim(case.true, ctx, cls=case.cls).items()}
 
     start = dict(case.true)
