@@ -286,9 +286,73 @@ class CameraConfig(_Strict):
     in the video and the reference image; render only, never simulated."""
 
 
+DEFAULT_LOSS = "lmd"
+"""The refinement's loss when the config names none (the paper's learnable motion
+distillation; registered by the priors package)."""
+
+
+class LossSpec(BaseModel):
+    """One entry of ``optimize.losses``: ``{type: NAME, weight: W, ...options}``.
+
+    ``type`` names a loss of the ``LOSSES`` registry; the other keys are that loss's
+    own options, validated by its ``Options`` model (``LOSSES.options``).
+    """
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+    type: str
+    """A registered loss name (``motionphysics.losses.LOSSES``)."""
+    weight: float = Field(1.0, ge=0)
+    """Factor of this loss in the weighted sum."""
+
+    @field_validator("type")
+    @classmethod
+    def _known(cls, v: str) -> str:
+        return _registered("losses", v)
+
+    @model_validator(mode="after")
+    def _options(self) -> LossSpec:
+        from motionphysics.losses import LOSSES
+
+        try:
+            LOSSES.options(self.type, self.options())
+        except UserInputError as err:
+            raise ValueError(str(err)) from None
+        return self
+
+    def options(self) -> dict[str, Any]:
+        """The loss's own options (every key but ``type`` and ``weight``)."""
+        return dict(self.model_extra or {})
+
+
+def _registered(kind: str, name: str) -> str:
+    """``name`` if the registry of ``kind`` has it (a ValueError naming the choices)."""
+    if kind == "priors":
+        from motionphysics.priors import PRIORS as reg
+
+        if name == "none":
+            return name
+    else:
+        from motionphysics.losses import LOSSES as reg
+    if name not in reg:
+        extra = ["none"] if kind == "priors" else []
+        raise ValueError(
+            f"unknown {reg.kind} {name!r}; expected one of {', '.join(extra + reg.names())}"
+        )
+    return name
+
+
 class OptimizeConfig(_Strict):
-    prior: Literal["none", "tiny", "cogvideox", "modelscope"] = "none"
-    loss: Literal["lmd", "sds", "flow", "video_match", "trajectory_match"] = "lmd"
+    prior: str = "none"
+    """``none`` (no refinement) or a video prior of the ``PRIORS`` registry."""
+    prior_path: str | None = None
+    """Model directory of the prior (``save_pretrained`` layout); None: the prior's default."""
+    loss: str | None = None
+    """Short form of ``losses: [{type: NAME}]``: a loss of the ``LOSSES`` registry
+    (None: :data:`DEFAULT_LOSS`, learnable motion distillation, checked when used)."""
+    losses: list[LossSpec] | None = None
+    """Weighted losses, ``[{type: NAME, weight: W, ...options}]``; wins over ``loss``."""
+    guidance: float = Field(7.5, ge=0)
+    """Classifier-free guidance scale of the prior."""
     iterations: int = Field(40, ge=0)
     boost: int = Field(8, ge=1)
     """Frame boosting: number M of interleaved subsequences."""
@@ -314,6 +378,48 @@ class OptimizeConfig(_Strict):
     """video_match: weight w of ``(1 - SSIM)`` in ``(1 - w) L1 + w (1 - SSIM)``."""
     trajectory_metric: Literal["l2", "chamfer"] = "l2"
     """trajectory_match: ``l2`` (corresponding particles) or ``chamfer`` (point sets)."""
+
+    @field_validator("prior")
+    @classmethod
+    def _known_prior(cls, v: str) -> str:
+        return _registered("priors", v)
+
+    @field_validator("loss")
+    @classmethod
+    def _known_loss(cls, v: str | None) -> str | None:
+        return v if v is None else _registered("losses", v)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_loss_form(cls, data: Any) -> Any:
+        # ``loss`` mirrors the first entry of ``losses`` (so run.yaml, which holds both,
+        # reads back); a ``loss`` that says something else is a contradiction.
+        if not isinstance(data, dict) or data.get("losses") is None:
+            return data
+        losses = data["losses"]
+        if not isinstance(losses, list) or not losses:
+            raise ValueError("optimize.losses: expected a list of {type: NAME, weight: W} entries")
+        first = losses[0].get("type") if isinstance(losses[0], dict) else None
+        if isinstance(first, str):
+            try:
+                _registered("losses", first)
+            except ValueError as err:
+                raise ValueError(f"optimize.losses[0].type: {err}") from None
+        if "loss" in data and first is not None and data["loss"] != first:
+            raise ValueError(
+                f"optimize.loss ({data['loss']!r}) and optimize.losses (first {first!r}) "
+                "disagree; give one of them"
+            )
+        return {**data, "loss": first} if first is not None else data
+
+    def loss_specs(self) -> list[LossSpec]:
+        """The configured losses: ``losses``, or ``[{type: loss}]`` (the short form)."""
+        if self.losses is not None:
+            return list(self.losses)
+        try:  # the default (``lmd``) is checked here, when a refinement needs it
+            return [LossSpec(type=self.loss or DEFAULT_LOSS)]
+        except ValidationError as err:
+            raise UserInputError(f"optimize.loss: {err.errors()[0]['msg']}") from None
 
 
 class RunConfig(_Strict):

@@ -117,7 +117,7 @@ def run_pipeline(
             f"--init: expected one of {', '.join(INIT_BACKENDS.names())}, got {init_backend!r}"
         )
     device = check_device(cfg.device)
-    refine = optimise and cfg.optimize.prior != "none"
+    refine = optimise and wants_refinement(cfg)
     if refine:
         _check_prior_available(cfg)
     progress = progress or Progress(quiet=True)
@@ -159,6 +159,11 @@ def run_pipeline(
 
         # ---- optimisation (the refinement stage) --------------------------------------
         if refine and cfg.optimize.iterations > 0:
+            writer.state["initial"] = {
+                "params": {k: float(v) for k, v in material.values.items()},
+                "sim": dict(res.values),
+                "substeps": int(res.substeps),
+            }
             with writer.stage("optimise", total=cfg.optimize.iterations) as st:
                 opt = _optimise(parts, writer, resume, st)
                 material = opt["material"]
@@ -191,26 +196,20 @@ def run_pipeline(
         return writer.finish()
 
 
+def wants_refinement(cfg: RunConfig) -> bool:
+    """True when ``run`` optimises: a prior is named, or ``optimize.losses`` is given."""
+    return cfg.optimize.prior != "none" or cfg.optimize.losses is not None
+
+
 def _check_prior_available(cfg: RunConfig) -> None:
-    """Fail fast (exit 2) when the requested prior or the optimiser is not in this build."""
-    import importlib.util
+    """Fail fast (exit 2) when the requested prior's module is not in this build."""
+    from motionphysics.priors import PRIORS
 
-    prior = cfg.optimize.prior
-    try:
-        have_prior = importlib.util.find_spec(f"motionphysics.priors.{prior}") is not None
-    except ImportError:  # no motionphysics.priors package in this build at all
-        have_prior = False
-    have_runner = False
-    try:
-        from motionphysics import optimize as _opt
-
-        have_runner = hasattr(_opt, "run_prior_optimisation")
-    except ImportError:
-        have_runner = False
-    if not (have_prior and have_runner):
+    name = cfg.optimize.prior
+    if name != "none" and not PRIORS.available(name):
         raise UserInputError(
-            f"optimize.prior: '{prior}' is not available in this build; use --prior none "
-            "(forward simulation from the estimated material)"
+            f"optimize.prior: '{name}' is not available in this build ({PRIORS.module_of(name)} "
+            "is not installed); use --prior none (forward simulation from the estimated material)"
         )
 
 

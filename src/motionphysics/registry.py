@@ -72,6 +72,23 @@ class Registry(Generic[T]):
             )
         return name
 
+    def module_of(self, name: str) -> str | None:
+        """The module a lazy entry lives in (None for an object registered directly)."""
+        entry = self._entries[self.check(name)]
+        return entry.partition(":")[0] if isinstance(entry, str) else None
+
+    def available(self, name: str) -> bool:
+        """True when ``name``'s module can be found, without importing it."""
+        import importlib.util
+
+        module = self.module_of(name)
+        if module is None:
+            return True
+        try:
+            return importlib.util.find_spec(module) is not None
+        except ImportError:  # a parent package is missing
+            return False
+
     def get(self, name: str) -> T:
         """The plug-in registered as ``name``, importing it on first use."""
         entry = self._entries[self.check(name)]

@@ -20,6 +20,8 @@ from motionphysics.errors import UserInputError
 
 
 def register(subparsers) -> None:
+    from motionphysics.init import INIT_BACKENDS
+
     p = subparsers.add_parser(
         "init",
         help="estimate the material class and parameters of a prompt",
@@ -37,7 +39,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--backend",
         default="kb",
-        choices=["kb", "llm", "median", "naive"],
+        choices=INIT_BACKENDS.names(),
         help="kb: offline knowledge base (default); llm: OpenAI-compatible chat "
         "model with ranges; median: range medians; naive: LLM without ranges",
     )

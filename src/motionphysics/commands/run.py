@@ -1,9 +1,10 @@
 """``motionphysics run CONFIG``: the main job (scene -> material from the prompt -> simulate -> render).
 
-Writes the run directory of DESIGN.md. With ``--prior none`` (the default in this
-build) no optimisation happens; a prior other than ``none`` goes through the
-optimiser plug-in of :mod:`motionphysics.pipeline` and fails with exit status 2 when
-this build has no such prior.
+Writes the run directory (README, "Run directory"). With ``--prior none`` (the
+default) and no ``optimize.losses`` no optimisation happens; otherwise the refinement
+stage (:mod:`motionphysics.optimize.refine`) optimises the estimated material against
+the configured losses before the final simulation. Choices of ``--init``, ``--prior``
+and ``--loss`` come from the registries.
 """
 
 from __future__ import annotations
@@ -88,23 +89,38 @@ def _overrides(args) -> dict:
     return {
         "prompt": args.prompt,
         "optimize.prior": args.prior,
+        "optimize.prior_path": args.prior_path,
         "optimize.loss": args.loss,
         "optimize.iterations": args.iters,
+        "optimize.guidance": args.guidance,
         "device": args.device,
         "export_ply": True if args.export_ply else None,
     }
 
 
 def _main(args) -> int:
-    from motionphysics.pipeline import load_run_config
+    from motionphysics.errors import UserInputError
+    from motionphysics.runconfig import load_run_config
 
     cfg = load_run_config(args.config, _overrides(args))
+    if args.loss is not None and cfg.optimize.prior == "none":
+        raise UserInputError(
+            f"--loss {args.loss}: a loss given on the command line drives the refinement by a "
+            "video prior, but the prior is none; add --prior NAME (or list prior-free losses "
+            "in the config's optimize.losses)"
+        )
+    if args.iters is not None and args.iters < 0:
+        raise UserInputError(f"--iters: expected a count >= 0, got {args.iters}")
     return execute(
         args, cfg, optimise=True, init_backend=args.init, command="run", config_origin=args.config
     )
 
 
 def register(subparsers) -> None:
+    from motionphysics.init import INIT_BACKENDS
+    from motionphysics.losses import LOSSES
+    from motionphysics.priors import PRIORS
+
     p = subparsers.add_parser(
         "run",
         help="main job: estimate the material from the prompt, simulate, render",
@@ -114,16 +130,20 @@ def register(subparsers) -> None:
     p.add_argument("--prompt", help="text prompt (overrides the config's prompt)")
     p.add_argument(
         "--init",
-        choices=["kb", "llm", "median", "naive"],
+        choices=INIT_BACKENDS.names(),
         default="kb",
         help="material estimation backend (default: kb, offline)",
     )
     p.add_argument(
         "--prior",
-        choices=["none", "tiny", "cogvideox", "modelscope"],
-        help="video prior for optimisation (default: the config's, none)",
+        choices=["none", *PRIORS.names()],
+        help="video prior for the refinement (default: the config's, none)",
     )
-    p.add_argument("--loss", choices=["lmd", "sds", "flow"], help="optimisation loss")
+    p.add_argument(
+        "--prior-path", metavar="DIR", help="model directory of the prior (save_pretrained layout)"
+    )
+    p.add_argument("--loss", choices=LOSSES.names(), help="refinement loss (needs --prior)")
     p.add_argument("--iters", type=int, metavar="N", help="optimisation iterations")
+    p.add_argument("--guidance", type=float, metavar="W", help="classifier-free guidance scale")
     add_run_options(p)
     p.set_defaults(func=_main)

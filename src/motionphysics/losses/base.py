@@ -74,6 +74,10 @@ class LossBuildContext:
     device: str = "cpu"
     seed: int = 0
     """The optimisation seed (a loss that samples draws from a generator seeded with it)."""
+    height: int = 0
+    """Pixel height of the run camera (0: unknown); frames a loss compares are this tall."""
+    width: int = 0
+    """Pixel width of the run camera (0: unknown)."""
 
 
 class Loss(ABC):

@@ -17,10 +17,11 @@ from typing import ClassVar
 import numpy as np
 import torch
 import torch.nn.functional as F
+from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor
 
 from motionphysics.errors import UserInputError
-from motionphysics.losses.base import Loss, LossContext, Prediction
+from motionphysics.losses.base import Loss, LossBuildContext, LossContext, Prediction
 
 __all__ = ["VideoMatchLoss", "ssim_map", "as_float_frames"]
 
@@ -76,6 +77,31 @@ class VideoMatchLoss(Loss):
 
     name: ClassVar[str] = "video_match"
     needs_render: ClassVar[bool] = True
+
+    class Options(BaseModel):
+        """``optimize.losses: [{type: video_match, reference: FILE, ssim_weight: W}]``."""
+
+        model_config = ConfigDict(extra="forbid")
+        reference: str
+        """Reference video (.mp4 / .gif, or .npz with ``frames`` and optionally ``mask``)
+        rendered from the run camera, one frame per run frame."""
+        ssim_weight: float = Field(0.2, ge=0, le=1)
+        """Weight w of ``(1 - SSIM)`` in ``(1 - w) L1 + w (1 - SSIM)``."""
+
+    @classmethod
+    def build(cls, options: Options, ctx: LossBuildContext) -> VideoMatchLoss:
+        """Read the reference of ``options`` and check it against the run of ``ctx``."""
+        from motionphysics.io.reference import load_reference
+
+        ref = load_reference(options.reference)
+        if ref.kind != "video":
+            raise UserInputError(
+                f"{ref.path}: video_match needs a video reference (frames), got a trajectory"
+            )
+        loss = cls(ref.data, mask=ref.mask, ssim_weight=options.ssim_weight, source=ref.path)
+        if ctx.num_frames and ctx.height and ctx.width:
+            loss.check(ctx.num_frames, ctx.height, ctx.width, "the run config's")
+        return loss
 
     def __init__(self, reference, mask=None, ssim_weight: float = 0.2, source: str = "reference"):
         ref = as_float_frames(reference)

@@ -269,6 +269,11 @@ def optimize(
             "grad_norm": {k: _finite(v) for k, v in grad_norm.items()},
             "lr": lrs,
         }
+        comps = problem.loss.components()
+        if "t" in comps:
+            record["t"] = comps["t"]  # the diffusion timestep a prior loss drew
+        if extras and "guidance" in extras:
+            record["guidance"] = extras["guidance"]
         substeps = getattr(problem.simulator, "substeps", None)
         if substeps is not None:
             # Under ``substeps: auto`` the simulator re-resolves the count for the

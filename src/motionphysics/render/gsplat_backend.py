@@ -34,7 +34,7 @@ def rasterize_gsplat(means, covs, colors, opacities, camera, background):
     """Render through ``gsplat.rasterization``; returns a RenderOutput (``[H, W, ...]``)."""
     from gsplat import rasterization
 
-    from motionphysics.render.rasterize import NEAR, RenderOutput
+    from motionphysics.render.core import NEAR, RenderOutput
 
     dev, dtype = means.device, means.dtype
     f32 = torch.float32  # gsplat's kernels are float32 only; cast back at the end

@@ -25,12 +25,13 @@ from functools import cache
 
 import torch
 
-from motionphysics.render.rasterize import (
+from motionphysics.render.core import (
     ALPHA_MAX,
     ALPHA_MIN,
     T_MIN,
-    _features,
-    _finish,
+    TileBins,
+    features,
+    finish,
     project_gaussians,
 )
 
@@ -251,8 +252,6 @@ def bin_tiles_warp(proj, width: int, height: int, tile: int):
     """
     import math
 
-    from motionphysics.render.rasterize import TileBins
-
     wp, kernel = _bin_kernel()
     tiles_x, tiles_y = math.ceil(width / tile), math.ceil(height / tile)
     n_tiles = tiles_x * tiles_y
@@ -467,7 +466,7 @@ class _RenderWarp(torch.autograd.Function):
         with _single_thread() as n_threads, torch.no_grad():
             proj = project_gaussians(means, covs, opacities, camera)
             bins = bin_tiles_warp(proj, camera.width, camera.height, tile)
-            feats = _features(colors, proj.depths)
+            feats = features(colors, proj.depths)
             acc, t_final = _RasterWarp.forward(
                 ctx,
                 proj.means2d,
@@ -482,7 +481,7 @@ class _RenderWarp(torch.autograd.Function):
                 tile,
                 bands=n_threads,
             )
-            out = _finish(acc, t_final, background)
+            out = finish(acc, t_final, background)
         ctx.render = (camera, background, acc, t_final, n_threads)
         ctx.inputs = (means, covs, colors, opacities)
         return out.rgb, out.alpha, out.depth
@@ -493,7 +492,7 @@ class _RenderWarp(torch.autograd.Function):
         with _single_thread(), torch.enable_grad():
             acc_ = acc.detach().requires_grad_()
             t_ = t_final.detach().requires_grad_()
-            out = _finish(acc_, t_, background)
+            out = finish(acc_, t_, background)
             pairs = [
                 (o, g)
                 for o, g in zip(
@@ -511,7 +510,7 @@ class _RenderWarp(torch.autograd.Function):
             ]
             means, covs, colors, opacities = leaves
             proj = project_gaussians(means, covs, opacities, camera)
-            feats = _features(colors, proj.depths)
+            feats = features(colors, proj.depths)
             outs = [proj.means2d, proj.conics, feats]
             gouts = [g_m2, g_con, g_feats]
             if opacities.requires_grad:
