@@ -13,29 +13,6 @@ from motionphysics.render.sh import C0, sh_to_rgb
 from motionphysics.scene.gaussians import GaussianScene, quat_to_rotmat
 
 
-def _fd_check(fn, leaves, h=1e-6, rtol=1e-6):
-    """Central differences of scalar ``fn(*leaves)`` in every entry vs autograd (float64)."""
-    leaves = [t.detach().clone().requires_grad_() for t in leaves]
-    fn(*leaves).backward()
-    for k, leaf in enumerate(leaves):
-        flat = leaf.detach().clone().reshape(-1)
-        fd = torch.empty_like(flat)
-        for i in range(flat.numel()):
-            vals = []
-            for sgn in (1.0, -1.0):
-                x = flat.clone()
-                x[i] += sgn * h
-                args = [t.detach() for t in leaves]
-                args[k] = x.reshape(leaf.shape)
-                with torch.no_grad():
-                    vals.append(fn(*args).item())
-            fd[i] = (vals[0] - vals[1]) / (2 * h)
-        ag = leaf.grad.reshape(-1)
-        # float64, h = 1e-6: truncation ~1e-12, rounding ~1e-10 (relative to O(1) values).
-        assert (ag - fd).abs().max().item() <= rtol * max(fd.abs().max().item(), 1e-12) + 1e-9, k
-        assert fd.abs().max() > 0
-
-
 def _sphere_quadrature():
     # Gauss-Legendre in cos(theta) x uniform phi: exact for polynomials of degree <= 15.
     x, w = np.polynomial.legendre.leggauss(10)
@@ -66,7 +43,7 @@ def test_sh_basis_is_orthonormal_and_matches_3dgs_signs():
     )
 
 
-def test_sh_degree0_clamp_and_gradients():
+def test_sh_degree0_clamp_and_gradients(fd_check):
     g = torch.Generator().manual_seed(0)
     sh = torch.randn(4, 1, 3, generator=g, dtype=torch.float64)
     rgb = sh_to_rgb(sh, torch.randn(4, 3, generator=g, dtype=torch.float64))
@@ -74,10 +51,10 @@ def test_sh_degree0_clamp_and_gradients():
     sh3 = torch.randn(3, 16, 3, generator=g, dtype=torch.float64) * 0.3
     dirs = torch.randn(3, 3, generator=g, dtype=torch.float64)
     wts = torch.rand(3, 3, generator=g, dtype=torch.float64)
-    _fd_check(lambda s, dd: (sh_to_rgb(s, dd) * wts).sum(), [sh3, dirs])
+    fd_check(lambda s, dd: (sh_to_rgb(s, dd) * wts).sum(), [sh3, dirs])
 
 
-def test_polar_rotation_properties_and_gradient():
+def test_polar_rotation_properties_and_gradient(fd_check):
     g = torch.Generator().manual_seed(1)
     F = torch.eye(3, dtype=torch.float64) + 0.4 * torch.randn(
         6, 3, 3, generator=g, dtype=torch.float64
@@ -103,7 +80,7 @@ def test_polar_rotation_properties_and_gradient():
     torch.testing.assert_close(torch.det(Ri[2]), torch.tensor(1.0, dtype=torch.float64))
     torch.testing.assert_close(Ri[3:], R[3:])
     W = torch.randn(6, 3, 3, generator=g, dtype=torch.float64)
-    _fd_check(lambda f: (polar_rotation(f) * W).sum(), [F])
+    fd_check(lambda f: (polar_rotation(f) * W).sum(), [F])
 
 
 def _tiny_splats(n, degree, seed):
@@ -137,7 +114,7 @@ def test_deform_identity_and_rotation():
     torch.testing.assert_close(covs, Q @ splats.covariances() @ Q.T)
 
 
-def test_deform_gradients_through_x_F_and_sh():
+def test_deform_gradients_through_x_F_and_sh(fd_check):
     splats = _tiny_splats(4, 2, seed=3)
     cam = orbit_camera(30.0, 20.0, 2.0)
     g = torch.Generator().manual_seed(4)
@@ -157,11 +134,11 @@ def test_deform_gradients_through_x_F_and_sh():
         m, c, col = deform_splats(s, x, F, parent, offset, cam)
         return (m * wm).sum() + (c * wc).sum() * 10 + (col * wr).sum()
 
-    _fd_check(loss, [x, F, splats.sh])
+    fd_check(loss, [x, F, splats.sh])
 
 
 @pytest.mark.parametrize("backend", ["warp", pytest.param("torch", marks=pytest.mark.slow)])
-def test_render_frames_gradients(backend):
+def test_render_frames_gradients(backend, fd_check):
     splats = _tiny_splats(3, 1, seed=5)
     sim_scene = SimpleNamespace(
         splats=splats,
@@ -182,4 +159,4 @@ def test_render_frames_gradients(backend):
     frames = render_frames(sim_scene, xs, Fs, cam)
     assert frames.shape == (2, 8, 10, 3)
     assert (frames < 0.99).any()  # something is drawn
-    _fd_check(loss, [xs, Fs])
+    fd_check(loss, [xs, Fs])

@@ -117,32 +117,8 @@ def test_warp_and_torch_backward_agree_float32():
         torch.testing.assert_close(gw, gt, rtol=0, atol=1e-4 * gt.abs().max().item())
 
 
-def _fd_check(fn, leaves, h=1e-6, rtol=1e-6):
-    """Central differences of scalar ``fn(*leaves)`` in every entry vs autograd (float64)."""
-    leaves = [t.detach().clone().requires_grad_() for t in leaves]
-    fn(*leaves).backward()
-    for k, leaf in enumerate(leaves):
-        flat = leaf.detach().clone().reshape(-1)
-        fd = torch.empty_like(flat)
-        for i in range(flat.numel()):
-            vals = []
-            for sgn in (1.0, -1.0):
-                x = flat.clone()
-                x[i] += sgn * h
-                args = [t.detach() for t in leaves]
-                args[k] = x.reshape(leaf.shape)
-                with torch.no_grad():
-                    vals.append(fn(*args).item())
-            fd[i] = (vals[0] - vals[1]) / (2 * h)
-        ag = leaf.grad.reshape(-1)
-        scale = max(fd.abs().max().item(), 1e-12)
-        # h = 1e-6 in float64: truncation ~h^2 * f''' ~1e-12, rounding ~1e-16 / h = 1e-10.
-        assert (ag - fd).abs().max().item() <= rtol * scale + 1e-9, (k, ag, fd)
-        assert fd.abs().max() > 0  # the input really influences the loss
-
-
 @pytest.mark.parametrize("backend", ["warp", "torch"])
-def test_gradients_match_finite_differences(backend):
+def test_gradients_match_finite_differences(backend, fd_check):
     cam = orbit_camera(20.0, 30.0, 2.0, (0, 0, 0), 50.0, 12, 10)
     # opacities below 0.7: no 0.99 clamp kink, and T stays far above the 1e-4 stop.
     scene = random_scene(5, seed=4, spread=0.3, scale=0.12, opac=(0.2, 0.7))
@@ -155,7 +131,7 @@ def test_gradients_match_finite_differences(backend):
         out = rasterize(means, covs, colors, opac, cam, (0.3, 0.6, 0.9), backend=backend)
         return (out.rgb * w_rgb).sum() + (out.alpha * w_a).sum() + 0.1 * (out.depth * w_d).sum()
 
-    _fd_check(loss, scene)
+    fd_check(loss, scene)
 
 
 def test_smooth_cut_removes_gradient_bias_of_hard_cut():
