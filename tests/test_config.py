@@ -1,4 +1,4 @@
-"""The run config (DESIGN.md's contract): validation messages, unknown keys, round trip."""
+"""The run config (the README's config reference): validation messages, unknown keys, round trip."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Typed run configuration: YAML in, validated, frozen; unknown keys are errors.
 
-The key names are a contract (DESIGN.md, "Run config"): scripts and people rely on
+The key names are a contract (README, "Config reference"): scripts and people rely on
 them. Keys may be added, never renamed. Coordinates are in the world frame (after the
 scene transform), z up, SI units.
 
@@ -469,7 +469,7 @@ def _first_error(err: ValidationError) -> str:
     loc = _format_loc(tuple(e.get("loc", ())))
     msg = e.get("msg", "invalid value")
     if e.get("type") == "extra_forbidden":
-        msg = "unknown key (check the spelling against DESIGN.md's run config)"
+        msg = "unknown key (check the spelling against the README's config reference)"
     return f"{loc}: {msg}"
 
 

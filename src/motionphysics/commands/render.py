@@ -17,6 +17,8 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
 def register(subparsers) -> None:
+    from motionphysics.render.core import RENDER_BACKENDS
+
     p = subparsers.add_parser(
         "render",
         help="render a scene (builtin:NAME, 3DGS .ply, mesh) to a PNG or an orbit video",
@@ -60,7 +62,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--backend",
         default="auto",
-        choices=["auto", "torch", "warp", "gsplat"],
+        choices=RENDER_BACKENDS.names(),
         help="rasteriser backend (default auto)",
     )
     p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")

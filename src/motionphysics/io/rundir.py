@@ -1,8 +1,8 @@
 """The run directory: one folder per run, every file written atomically.
 
-Layout (DESIGN.md, "Run directory")::
+Layout (README, "Run directory")::
 
-    run.yaml  params.json  trajectory.npz  video.mp4  splats/  log.jsonl
+    run.yaml  params.json  trajectory.npz  video.mp4  scene.ply  splats/  log.jsonl
     metrics.json  plots/  checkpoint.pt  report.html
 
 Every file is written to a temporary name in the same folder and moved into place

@@ -12,9 +12,11 @@ from dataclasses import dataclass
 
 import torch
 
+from motionphysics.registry import Registry
 from motionphysics.render.camera import Camera
 
 __all__ = [
+    "RENDER_BACKENDS",
     "ALPHA_MAX",
     "ALPHA_MIN",
     "EPS2D",
@@ -29,6 +31,19 @@ __all__ = [
     "finish",
     "project_gaussians",
 ]
+
+RENDER_BACKENDS: Registry = Registry(
+    "render backend",
+    "--backend",
+    {
+        # ``auto`` picks gsplat on CUDA tensors and warp on CPU (rasterize.resolve_backend)
+        "auto": "motionphysics.render.rasterize:rasterize",
+        "torch": "motionphysics.render.rasterize:rasterize",
+        "warp": "motionphysics.render.warp_backend:rasterize_warp",
+        "gsplat": "motionphysics.render.gsplat_backend:rasterize_gsplat",
+    },
+)
+"""Rasteriser backends by name (the ``--backend`` choices; ``rasterize(backend=...)``)."""
 
 TILE = 16  # tile edge [pixels] of the torch backend
 WARP_TILE = 4  # tile edge of the warp backend (per-pixel loops: small tiles, short lists; measured 4 <= 8 < 16)

@@ -42,6 +42,7 @@ from motionphysics.render.core import (
     ALPHA_MIN,
     EPS2D,
     NEAR,
+    RENDER_BACKENDS,
     T_MIN,
     TILE,
     WARP_TILE,
@@ -68,7 +69,7 @@ __all__ = [
     "T_MIN",
 ]
 
-BACKENDS = ("auto", "torch", "warp", "gsplat")
+BACKENDS = tuple(RENDER_BACKENDS.names())
 
 
 def _taper_alpha(alpha: torch.Tensor) -> torch.Tensor:
