@@ -295,7 +295,10 @@ class LossSpec(BaseModel):
     """One entry of ``optimize.losses``: ``{type: NAME, weight: W, ...options}``.
 
     ``type`` names a loss of the ``LOSSES`` registry; the other keys are that loss's
-    own options, validated by its ``Options`` model (``LOSSES.options``).
+    own options, validated by its ``Options`` model (``LOSSES.options``). Names and
+    options are checked against the registries by
+    :func:`motionphysics.runconfig.check_plugins` (this module imports no plug-in
+    package: the registries' packages depend on it).
     """
 
     model_config = ConfigDict(extra="allow", frozen=True)
@@ -304,41 +307,9 @@ class LossSpec(BaseModel):
     weight: float = Field(1.0, ge=0)
     """Factor of this loss in the weighted sum."""
 
-    @field_validator("type")
-    @classmethod
-    def _known(cls, v: str) -> str:
-        return _registered("losses", v)
-
-    @model_validator(mode="after")
-    def _options(self) -> LossSpec:
-        from motionphysics.losses import LOSSES
-
-        try:
-            LOSSES.options(self.type, self.options())
-        except UserInputError as err:
-            raise ValueError(str(err)) from None
-        return self
-
     def options(self) -> dict[str, Any]:
         """The loss's own options (every key but ``type`` and ``weight``)."""
         return dict(self.model_extra or {})
-
-
-def _registered(kind: str, name: str) -> str:
-    """``name`` if the registry of ``kind`` has it (a ValueError naming the choices)."""
-    if kind == "priors":
-        from motionphysics.priors import PRIORS as reg
-
-        if name == "none":
-            return name
-    else:
-        from motionphysics.losses import LOSSES as reg
-    if name not in reg:
-        extra = ["none"] if kind == "priors" else []
-        raise ValueError(
-            f"unknown {reg.kind} {name!r}; expected one of {', '.join(extra + reg.names())}"
-        )
-    return name
 
 
 class OptimizeConfig(_Strict):
@@ -379,16 +350,6 @@ class OptimizeConfig(_Strict):
     trajectory_metric: Literal["l2", "chamfer"] = "l2"
     """trajectory_match: ``l2`` (corresponding particles) or ``chamfer`` (point sets)."""
 
-    @field_validator("prior")
-    @classmethod
-    def _known_prior(cls, v: str) -> str:
-        return _registered("priors", v)
-
-    @field_validator("loss")
-    @classmethod
-    def _known_loss(cls, v: str | None) -> str | None:
-        return v if v is None else _registered("losses", v)
-
     @model_validator(mode="before")
     @classmethod
     def _one_loss_form(cls, data: Any) -> Any:
@@ -400,11 +361,6 @@ class OptimizeConfig(_Strict):
         if not isinstance(losses, list) or not losses:
             raise ValueError("optimize.losses: expected a list of {type: NAME, weight: W} entries")
         first = losses[0].get("type") if isinstance(losses[0], dict) else None
-        if isinstance(first, str):
-            try:
-                _registered("losses", first)
-            except ValueError as err:
-                raise ValueError(f"optimize.losses[0].type: {err}") from None
         if "loss" in data and first is not None and data["loss"] != first:
             raise ValueError(
                 f"optimize.loss ({data['loss']!r}) and optimize.losses (first {first!r}) "
@@ -416,10 +372,7 @@ class OptimizeConfig(_Strict):
         """The configured losses: ``losses``, or ``[{type: loss}]`` (the short form)."""
         if self.losses is not None:
             return list(self.losses)
-        try:  # the default (``lmd``) is checked here, when a refinement needs it
-            return [LossSpec(type=self.loss or DEFAULT_LOSS)]
-        except ValidationError as err:
-            raise UserInputError(f"optimize.loss: {err.errors()[0]['msg']}") from None
+        return [LossSpec(type=self.loss or DEFAULT_LOSS)]
 
 
 class RunConfig(_Strict):

@@ -9,28 +9,15 @@ the assembly's (:mod:`motionphysics.assembly`).
 
 from __future__ import annotations
 
-import platform
 from collections.abc import Mapping
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from motionphysics import __version__
 from motionphysics.config import MATERIAL_CLASSES, RunConfig, config_from_dict
 from motionphysics.errors import UserInputError
+from motionphysics.versions import versions
 
-__all__ = ["load_run_config", "read_params_file", "resolve_paths", "versions"]
-
-
-def versions() -> dict[str, str]:
-    """Versions of the packages that shape a run's numbers (recorded in run.yaml)."""
-    out = {"motionphysics": __version__, "python": platform.python_version()}
-    for dist, key in (("torch", "torch"), ("warp-lang", "warp"), ("numpy", "numpy")):
-        try:
-            out[key] = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            pass
-    return out
+__all__ = ["check_plugins", "load_run_config", "read_params_file", "resolve_paths", "versions"]
 
 
 def _set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
@@ -107,7 +94,49 @@ def load_run_config(
     for key, value in (overrides or {}).items():
         if value is not None:
             _set_path(data, key, value)
-    return config_from_dict(resolve_paths(data, base), origin)
+    cfg = config_from_dict(resolve_paths(data, base), origin)
+    check_plugins(cfg, origin)
+    return cfg
+
+
+def check_plugins(cfg: RunConfig, origin: str = "<config>") -> None:
+    """Plug-in names and options of ``cfg`` against the registries (one-line user errors).
+
+    ``optimize.prior`` (``none`` or a ``PRIORS`` name), ``optimize.loss`` and every
+    ``optimize.losses[i]`` (a ``LOSSES`` name; its options validated by the loss's
+    ``Options`` model through ``LOSSES.options``).
+    """
+    from motionphysics.losses import LOSSES
+    from motionphysics.priors import PRIORS
+
+    opt = cfg.optimize
+    try:
+        if opt.prior != "none" and opt.prior not in PRIORS:
+            choices = ", ".join(["none", *PRIORS.names()])
+            raise UserInputError(
+                f"optimize.prior: unknown video prior {opt.prior!r}; expected one of {choices}"
+            )
+        if opt.losses is None:
+            if opt.loss is not None:
+                LOSSES.check(opt.loss)
+            return
+        for i, spec in enumerate(opt.losses):
+            where = f"optimize.losses[{i}]"
+            if spec.type not in LOSSES:
+                raise UserInputError(
+                    f"{where}.type: unknown loss {spec.type!r}; expected one of "
+                    f"{', '.join(LOSSES.names())}"
+                )
+            try:
+                LOSSES.options(spec.type, spec.options())
+            except UserInputError as err:
+                # the registry names its own field (optimize.loss); name the entry instead
+                text = str(err)
+                if text.startswith(LOSSES.field):
+                    text = where + text[len(LOSSES.field) :]
+                raise UserInputError(text) from None
+    except UserInputError as err:
+        raise UserInputError(f"{origin}: {err}") from None
 
 
 def read_params_file(path: str | Path) -> dict[str, Any]:

@@ -137,7 +137,7 @@ def _fps(frame_dt: float) -> float:
 
 
 def versions() -> dict[str, str]:
-    from motionphysics.runconfig import versions as _versions
+    from motionphysics.versions import versions as _versions
 
     return _versions()
 
