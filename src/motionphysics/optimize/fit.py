@@ -216,10 +216,10 @@ def final_material(problem, material, theta):
         return float(a) if a.numel() == 1 else a.numpy().astype(np.float32)
 
     phys = {k: conv(v) for k, v in phys.items()}
+    order = [k for k in material.values if k in phys]  # the class's order, as the start
+    order += [k for k in phys if k not in order and k != "density"]
     return type(material)(
-        material.cls,
-        phys.get("density", material.density),
-        {k: v for k, v in phys.items() if k != "density"},
+        material.cls, phys.get("density", material.density), {k: phys[k] for k in order}
     )
 
 
