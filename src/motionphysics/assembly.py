@@ -38,11 +38,9 @@ import numpy as np
 from motionphysics.config import RunConfig, SurfaceCollider, config_from_dict, config_to_dict
 from motionphysics.errors import SimulationError, UserInputError
 from motionphysics.events import NullObserver, Observer
-from motionphysics.io.writer import UNITS
 
 __all__ = [
     "AUTO_MAP_SUBSTEPS",
-    "UNITS",
     "Assembly",
     "BridgeSimulator",
     "SimResolution",
@@ -52,7 +50,6 @@ __all__ = [
     "ground_splats",
     "map_context",
     "material_complete",
-    "material_record",
     "render_frames",
     "render_view",
     "resolve_camera",
@@ -212,22 +209,6 @@ def material_complete(cfg: RunConfig) -> bool:
     given = m.overrides()
     mc = MATERIALS[normalise_class(m.class_, field="material.class")]
     return all(p.name in given or getattr(p, "default", None) is not None for p in mc.params)
-
-
-def material_record(
-    material, sim_values: dict[str, float], sim_ctx: dict[str, Any]
-) -> dict[str, Any]:
-    from motionphysics.materials.catalog import class_id
-
-    return {
-        "class": material.cls,
-        "class_id": int(class_id(material.cls)),
-        "density": float(material.density),
-        "params": {k: float(v) for k, v in material.values.items()},
-        "units": {k: UNITS[k] for k in ("density", *material.values)},
-        "sim": dict(sim_values),
-        "sim_context": sim_ctx,
-    }
 
 
 # --------------------------------------------------------------------------------------
@@ -790,20 +771,6 @@ def _render_reference(sim_scene, camera, background, ground) -> np.ndarray:
             sim_scene, sim_scene.particles, torch.eye(3).expand(P, 3, 3), camera, background, ground
         )
     return (np.clip(_np(ref), 0, 1) * 255 + 0.5).astype(np.uint8)
-
-
-def scene_record(cfg: RunConfig, sim_scene) -> dict[str, Any]:
-    """The ``scene`` block of ``params.json``."""
-    return {
-        "source": cfg.scene.source,
-        "splats": int(sim_scene.splats.num),
-        "particles": int(_np(sim_scene.particles).shape[0]),
-        "interior_particles": int(getattr(sim_scene, "n_interior", 0)),
-        "domain_lo": [float(v) for v in _np(sim_scene.domain_lo)],
-        "domain_hi": [float(v) for v in _np(sim_scene.domain_hi)],
-        "dx": float(sim_scene.dx),
-        "grid_dims": [int(v) for v in sim_scene.grid_dims],
-    }
 
 
 def assemble(

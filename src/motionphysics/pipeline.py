@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from motionphysics.assembly import (  # noqa: F401 - re-exported
-    UNITS,
     assemble,
     ground_splats,
     material_complete,
@@ -46,6 +45,7 @@ from motionphysics.config import RunConfig
 from motionphysics.errors import UserInputError
 from motionphysics.io.writer import (  # noqa: F401 - re-exported
     PARAMS_SCHEMA,
+    UNITS,
     RunResult,
     RunWriter,
     print_summary,

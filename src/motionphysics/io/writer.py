@@ -218,9 +218,10 @@ class RunWriter:
         data = config_to_dict(cfg)
         data["versions"] = versions()
         self.rd.write_yaml("run.yaml", data)
-        self._add("run.yaml", "params.json")
+        self.add_files("run.yaml", "params.json")
 
-    def _add(self, *names: str) -> None:
+    def add_files(self, *names: str) -> None:
+        """Record files written by others in the directory (``log.jsonl`` by the loop)."""
         for n in names:
             if n not in self.files:
                 self.files.append(n)
@@ -281,7 +282,7 @@ class RunWriter:
         self.state["wall_time_s"] = time.perf_counter() - self._t0
         self.save()
         self._report()
-        self._add("report.html")
+        self.add_files("report.html")
         self.save()
         result = RunResult(
             self.path,
@@ -326,7 +327,7 @@ class RunWriter:
         }
         with self.rd.writing("scene.ply") as tmp:
             write_ply(sim_scene.splats, tmp)
-        self._add("scene.ply")
+        self.add_files("scene.ply")
 
     def record_camera(self, cfg, note: Mapping[str, Any], image: np.ndarray | None) -> None:
         """``camera`` block, ``plots/reference.png`` (uint8 [H,W,3]) and run.yaml."""
@@ -370,7 +371,7 @@ class RunWriter:
 
         with self.rd.writing(name) as tmp:
             Image.fromarray(img).save(tmp, format="PNG")
-        self._add(name)
+        self.add_files(name)
 
     def write_video(self, video: np.ndarray, frame_dt: float) -> None:
         """``video.mp4`` from uint8 frames [T, H, W, 3] at 1 / frame_dt fps (1-60)."""
@@ -378,7 +379,7 @@ class RunWriter:
 
         with self.rd.writing("video.mp4") as tmp:
             write_video(video, tmp, _fps(frame_dt))
-        self._add("video.mp4")
+        self.add_files("video.mp4")
 
     def write_trajectory(self, sim_scene, xs, Fs, vs, cfg, density) -> dict[str, np.ndarray]:
         """``trajectory.npz`` (x, t, F, v, masses, volumes, and what re-deforming the
@@ -405,7 +406,7 @@ class RunWriter:
             dx=np.float32(sim_scene.dx),
             frame_dt=np.float32(cfg.sim.frame_dt),
         )
-        self._add("trajectory.npz")
+        self.add_files("trajectory.npz")
         return read_trajectory(self.path / "trajectory.npz")
 
     def write_metrics(self, traj: Mapping[str, np.ndarray]) -> dict[str, Any]:
@@ -417,7 +418,7 @@ class RunWriter:
             for k in ("final_height_ratio", "spread_ratio", "max_displacement")
             if k in metrics
         }
-        self._add("metrics.json")
+        self.add_files("metrics.json")
         return metrics
 
     def write_outputs(self, sim_scene, xs, Fs, vs, video, cfg, material) -> dict[str, Any]:
@@ -498,7 +499,7 @@ class RunWriter:
                 new.append("plots/loss.png")
             except ValueError:
                 pass
-            ranges = self.state.get("param_ranges_") or _ranges(self.state)
+            ranges = _ranges(self.state)
             try:
                 plot_params(records, ranges, self.rd.file("plots/params.png"))
                 new.append("plots/params.png")
@@ -507,7 +508,7 @@ class RunWriter:
         for n in new:
             if n not in self.plots:
                 self.plots.append(n)
-        self._add("plots/")
+        self.add_files("plots/")
         return new
 
     def export_splats(self, sim_scene, xs, Fs, on_frame=None) -> None:
@@ -515,7 +516,7 @@ class RunWriter:
         from motionphysics.io.export import export_splats
 
         export_splats(sim_scene, xs, Fs, self.path / "splats", on_frame=on_frame)
-        self._add("splats/")
+        self.add_files("splats/")
 
 
 class _ObservedStage:

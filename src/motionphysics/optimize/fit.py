@@ -317,7 +317,7 @@ def run_fit(
                 progress=lambda rec: st.advance(),
                 observer=writer.observer,
             )
-        writer._add("log.jsonl", "checkpoint.pt")
+        writer.add_files("log.jsonl", "checkpoint.pt")
         writer.state["history"] = result.history
         fit.update(
             {

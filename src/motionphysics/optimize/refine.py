@@ -155,7 +155,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         extras={"prompt": cfg.prompt, "prior": prior, "guidance": float(cfg.optimize.guidance)},
         losses=[lo for _, _, lo in loss.terms],
     )
-    writer._add("log.jsonl", "checkpoint.pt")
+    writer.add_files("log.jsonl", "checkpoint.pt")
     return {
         "material": final_material(problem, parts.material, result.theta),
         "history": result.history,
