@@ -78,6 +78,8 @@ class LossBuildContext:
     """Pixel height of the run camera (0: unknown); frames a loss compares are this tall."""
     width: int = 0
     """Pixel width of the run camera (0: unknown)."""
+    num_particles: int = 0
+    """Simulated particles of the prepared scene (0: unknown)."""
 
 
 class Loss(ABC):

@@ -16,10 +16,11 @@ from typing import ClassVar, Literal
 
 import numpy as np
 import torch
+from pydantic import BaseModel, ConfigDict
 from torch import Tensor
 
 from motionphysics.errors import UserInputError
-from motionphysics.losses.base import Loss, LossContext, Prediction
+from motionphysics.losses.base import Loss, LossBuildContext, LossContext, Prediction
 
 __all__ = ["TrajectoryMatchLoss", "chamfer_distance"]
 
@@ -56,6 +57,30 @@ class TrajectoryMatchLoss(Loss):
 
     name: ClassVar[str] = "trajectory_match"
     needs_states: ClassVar[bool] = True
+
+    class Options(BaseModel):
+        """``optimize.losses: [{type: trajectory_match, reference: FILE, metric: l2}]``."""
+
+        model_config = ConfigDict(extra="forbid")
+        reference: str
+        """Reference trajectory: .npz with ``x`` [frames, particles, 3] (a trajectory.npz)."""
+        metric: Literal["l2", "chamfer"] = "l2"
+        """``l2`` (corresponding particles) or ``chamfer`` (point sets)."""
+
+    @classmethod
+    def build(cls, options: Options, ctx: LossBuildContext) -> TrajectoryMatchLoss:
+        """Read the reference of ``options`` and check it against the run of ``ctx``."""
+        from motionphysics.io.reference import load_reference
+
+        ref = load_reference(options.reference)
+        if ref.kind != "trajectory":
+            raise UserInputError(
+                f"{ref.path}: trajectory_match needs a trajectory reference (x), got a video"
+            )
+        loss = cls(ref.data, metric=options.metric, source=ref.path)
+        if ctx.num_frames and ctx.num_particles:
+            loss.check(ctx.num_frames, ctx.num_particles, "the run config's")
+        return loss
 
     def __init__(
         self,

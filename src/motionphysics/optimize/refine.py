@@ -141,6 +141,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         seed=int(cfg.optimize.seed),
         height=int(cfg.camera.height),
         width=int(cfg.camera.width),
+        num_particles=parts.num_particles,
     )
     loss = build_losses(cfg, bctx)
     problem = build_problem(parts, loss)
