@@ -153,3 +153,22 @@ def test_simulate_command_and_fit_forward_agree(tmp_path):
     vals = {k: torch.tensor(v, dtype=torch.float64) for k, v in parts.resolution.values.items()}
     xs, _ = sim.simulate(vals, None, [0, 1, 2], "full", 8)
     assert np.array_equal(xs.detach().numpy(), xs_cmd)
+
+
+def test_resolution_is_the_one_record_of_the_simulation(tiny_assembly):
+    res = tiny_assembly.resolution
+    rec = res.record()
+    assert rec["substeps"] == 12 and rec["substeps_mode"] == "fixed"
+    assert rec["dt"] == pytest.approx(0.02 / 12) and rec["dt_map"] == pytest.approx(0.02 / 12)
+    # the differentiable map and the forward commands' values are the same numbers
+    phys = {"density": 1000.0, "E": 2.0e7, "nu": 0.3}
+    sim = tiny_assembly.to_sim(phys)
+    assert all(sim[k].dtype == torch.float64 for k in sim)
+    assert {k: float(v) for k, v in sim.items()} == res.values
+    # another material: resolved again by the same functions, the scene kept
+    soft = MaterialParams("elastic", 1000.0, {"E": 1.0e7, "nu": 0.3})
+    other = tiny_assembly.with_material(soft)
+    assert (
+        other.sim_scene is tiny_assembly.sim_scene
+        and other.resolution.values["E"] < res.values["E"]
+    )
