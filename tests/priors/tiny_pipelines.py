@@ -70,7 +70,15 @@ def tiny_clip_tokenizer(model_max_length: int = 16):
     vocab: dict[str, int] = {}
     for c in chars + [c + "</w>" for c in chars]:
         vocab.setdefault(c, len(vocab))
-    merges = [("t", "h"), ("th", "e</w>"), ("a", "l"), ("al", "l</w>"), ("b", "o"), ("o", "u"), ("n", "c")]
+    merges = [
+        ("t", "h"),
+        ("th", "e</w>"),
+        ("a", "l"),
+        ("al", "l</w>"),
+        ("b", "o"),
+        ("o", "u"),
+        ("n", "c"),
+    ]
     for m in merges:
         vocab.setdefault("".join(m), len(vocab))
     for special in ("<|startoftext|>", "<|endoftext|>"):
@@ -80,7 +88,9 @@ def tiny_clip_tokenizer(model_max_length: int = 16):
     return tok
 
 
-def write_tiny_cogvideox(directory, *, rope: bool = False, v_prediction: bool = True, seed: int = 0) -> Path:
+def write_tiny_cogvideox(
+    directory, *, rope: bool = False, v_prediction: bool = True, seed: int = 0
+) -> Path:
     """Write a tiny CogVideoX pipeline (T5 + tokenizer, 3-D VAE, transformer, scheduler).
 
     ``rope``: the 5b-style transformer (rotary embeddings, no sin-cos table);

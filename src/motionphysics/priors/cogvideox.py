@@ -143,7 +143,9 @@ class CogVideoXPrior(DiffusersPrior):
             )
         # Trained precisions: 5b-style (RoPE) in bf16 (fp16 gives NaNs), 2b in fp16.
         rope = bool(tf_cfg.get("use_rotary_positional_embeddings", False))
-        dt = resolve_dtype(dev, opts.dtype if dtype is None else dtype, torch.bfloat16 if rope else torch.float16)
+        dt = resolve_dtype(
+            dev, opts.dtype if dtype is None else dtype, torch.bfloat16 if rope else torch.float16
+        )
         scheduler = load_scheduler(md)
         vae = load_model(md, "vae", "diffusers", dt)
         transformer = load_model(md, "transformer", "diffusers", dt)

@@ -234,7 +234,10 @@ def configure_vae(vae, opts, device: torch.device) -> None:
         vae.enable_gradient_checkpointing()
     if opts.vae_tiling:
         if opts.vae_tile_size is not None:
-            kwargs = {"tile_sample_min_height": opts.vae_tile_size, "tile_sample_min_width": opts.vae_tile_size}
+            kwargs = {
+                "tile_sample_min_height": opts.vae_tile_size,
+                "tile_sample_min_width": opts.vae_tile_size,
+            }
             try:
                 vae.enable_tiling(**kwargs)
             except TypeError:  # 2-D AutoencoderKL: enable_tiling() takes no sizes

@@ -152,12 +152,13 @@ def require_weights(md: ModelDir, component: str) -> None:
     sub = md.sub(component)
     if not any(sub.glob("*.safetensors")) and not any(sub.glob("*.bin")):
         raise UserInputError(
-            f"{sub}: no weights (*.safetensors or *.bin) for component {component!r}; "
-            f"{md.hint()}"
+            f"{sub}: no weights (*.safetensors or *.bin) for component {component!r}; {md.hint()}"
         )
 
 
-def resolve_dtype(device: torch.device, requested: torch.dtype | str | None, cuda_default) -> torch.dtype:
+def resolve_dtype(
+    device: torch.device, requested: torch.dtype | str | None, cuda_default
+) -> torch.dtype:
     """float32 on CPU (half precision convolutions are slow or missing there); on CUDA the
     dtype the model was trained in (``cuda_default``) unless one is requested."""
     if isinstance(requested, str):
@@ -184,4 +185,6 @@ def resolve_dtype(device: torch.device, requested: torch.dtype | str | None, cud
 def load_failed(md: ModelDir, component: str, err: Exception) -> UserInputError:
     """A component whose files exist but do not load (truncated weights, wrong shapes)."""
     reason = (str(err).splitlines() or [type(err).__name__])[0][:200]
-    return UserInputError(f"{md.sub(component)}: cannot load component {component!r} ({reason}); {md.hint()}")
+    return UserInputError(
+        f"{md.sub(component)}: cannot load component {component!r} ({reason}); {md.hint()}"
+    )
