@@ -241,3 +241,48 @@ def write_tiny_modelscope(directory, *, seed: int = 0) -> Path:
     )
     pipe.save_pretrained(directory)
     return directory
+
+
+_CACHE: dict[str, Path] = {}
+
+
+def tiny_dir(kind: str) -> Path:
+    """A tiny pipeline directory written once per test process (``cogvideox``: 2b-style,
+    v-prediction; ``cogvideox-rope``: 5b-style; ``cogvideox-eps``: epsilon DDIM as in
+    diffusers' dummy; ``modelscope``). Removed at exit."""
+    import atexit
+    import shutil
+    import tempfile
+
+    if kind not in _CACHE:
+        root = Path(tempfile.mkdtemp(prefix=f"mp-tiny-{kind}-"))
+        atexit.register(shutil.rmtree, root, True)
+        if kind == "cogvideox":
+            write_tiny_cogvideox(root)
+        elif kind == "cogvideox-rope":
+            write_tiny_cogvideox(root, rope=True)
+        elif kind == "cogvideox-eps":
+            write_tiny_cogvideox(root, v_prediction=False)
+        elif kind == "modelscope":
+            write_tiny_modelscope(root)
+        else:
+            raise ValueError(kind)
+        _CACHE[kind] = root
+    return _CACHE[kind]
+
+
+# Sizes the tiny pipelines run at (prior options for load_prior).
+TINY_OPTIONS = {
+    "cogvideox": {"num_frames": 9, "height": 16, "width": 16},
+    "cogvideox-rope": {"num_frames": 9, "height": 16, "width": 16},
+    "cogvideox-eps": {"num_frames": 9, "height": 16, "width": 16},
+    "modelscope": {"num_frames": 4, "height": 16, "width": 16},
+}
+
+
+def load_tiny(kind: str, **options):
+    """Load the tiny pipeline ``kind`` through the real loading code (``load_prior``)."""
+    from motionphysics.priors import load_prior
+
+    name = "modelscope" if kind == "modelscope" else "cogvideox"
+    return load_prior(name, str(tiny_dir(kind)), **{**TINY_OPTIONS[kind], **options})

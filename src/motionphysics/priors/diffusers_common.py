@@ -33,7 +33,7 @@ class DiffusersPriorOptions(BaseModel):
     width: int = Field(default=256, ge=8)
     """Pixel width the prior runs at (the paper: 256)."""
     dtype: str | None = None
-    """Network dtype: float32 / float16 / bfloat16. None: float32 on CPU; on CUDA the
+    """Network dtype: float32 / float16 / bfloat16 (float64 for gradient checks). None: float32 on CPU; on CUDA the
     dtype the model was trained in (CogVideoX-5b-style RoPE models bf16, -2b fp16,
     ModelScope fp16)."""
     vae_checkpointing: bool | None = None

@@ -163,6 +163,7 @@ def resolve_dtype(
     dtype the model was trained in (``cuda_default``) unless one is requested."""
     if isinstance(requested, str):
         table = {
+            "float64": torch.float64,
             "float32": torch.float32,
             "fp32": torch.float32,
             "float16": torch.float16,
