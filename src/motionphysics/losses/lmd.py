@@ -111,7 +111,7 @@ class MotionExtractor(nn.Module):
 
 def charbonnier(d: Tensor, beta: float, kind: str) -> Tensor:
     """``paper``: sqrt(‖d‖² + β²) (Eq. 4); ``released``: Σ (sqrt(d² + β²) − β)."""
-    d = d.float()
+    d = d if d.dtype == torch.float64 else d.float()
     if kind == "paper":
         return torch.sqrt((d * d).sum() + beta * beta)
     return (torch.sqrt(d * d + beta * beta) - beta).sum()
@@ -209,8 +209,10 @@ class LmdLoss(Loss):
             target_latent = gp.x0
         else:
             target_latent = z0.detach() + (gp.x0 - gp.x0_uncond)
+        pdt = next(self.extractor.parameters()).dtype  # float32 (float64 in gradient checks)
+        z0 = z0.to(pdt)
         with torch.no_grad():
-            y_target = self.ema(target_latent.float())
+            y_target = self.ema(target_latent.to(pdt))
         alpha_bar = prior.alphas_cumprod[t.long()].float().to(z0.device)
         w = step_weight(o.weighting, alpha_bar).reshape(())
 

@@ -201,14 +201,18 @@ class VideoPrior(ABC):
         on the raw output (v or ε), one batched call over [uncond; cond]."""
         text = self.text
         b = z_t.shape[0]
+        # Guidance arithmetic in float32 (float64 when the caller works in float64, as
+        # gradient checks do), whatever the network's dtype, as the pipelines do.
+        ft = torch.float64 if z_t.dtype == torch.float64 else torch.float32
         with torch.no_grad():
             emb = torch.cat([text.uncond.expand(b, -1, -1), text.cond.expand(b, -1, -1)])
-            raw = self.model_output(torch.cat([z_t, z_t]), torch.cat([t, t]), emb).float()
+            raw = self.model_output(torch.cat([z_t, z_t]), torch.cat([t, t]), emb).to(ft)
             out_u, out_c = raw.chunk(2)
             out = out_u + guidance * (out_c - out_u)
-            x0, eps = self.to_x0_eps(out, z_t.float(), t)
-            x0_c, eps_c = self.to_x0_eps(out_c, z_t.float(), t)
-            x0_u, eps_u = self.to_x0_eps(out_u, z_t.float(), t)
+            zf = z_t.to(ft)
+            x0, eps = self.to_x0_eps(out, zf, t)
+            x0_c, eps_c = self.to_x0_eps(out_c, zf, t)
+            x0_u, eps_u = self.to_x0_eps(out_u, zf, t)
         return GuidedPrediction(
             x0=x0, eps=eps, eps_cond=eps_c, eps_uncond=eps_u, t=t, x0_cond=x0_c, x0_uncond=x0_u
         )

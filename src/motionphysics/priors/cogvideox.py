@@ -197,12 +197,12 @@ class CogVideoXPrior(DiffusersPrior):
         x = (x * 2.0 - 1.0).permute(3, 0, 1, 2).unsqueeze(0)  # [1, 3, F, H, W] in [-1, 1]
         dist = self.vae.encode(x.to(self.device, self.dtype)).latent_dist
         z = self._posterior_sample(dist, generator) * self.scaling_factor  # [1, C, F_lat, h, w]
-        return z.permute(0, 2, 1, 3, 4).float()  # [1, F_lat, C, h, w]
+        return self._wide(z.permute(0, 2, 1, 3, 4))  # [1, F_lat, C, h, w]
 
     def decode(self, latents: Tensor) -> Tensor:
         z = latents.permute(0, 2, 1, 3, 4).to(self.device, self.dtype) / self.scaling_factor
         video = self.vae.decode(z).sample  # [1, 3, F, H, W] in [-1, 1]
-        return ((video[0].float() + 1.0) / 2.0).permute(1, 2, 3, 0)
+        return ((self._wide(video[0]) + 1.0) / 2.0).permute(1, 2, 3, 0)
 
     def _rope(self, f_lat: int, h: int, w: int):
         """(cos, sin) [F_lat·gh·gw, head_dim] from the pipeline's own function, cached."""
@@ -230,4 +230,4 @@ class CogVideoXPrior(DiffusersPrior):
             image_rotary_emb=self._rope(f_lat, h, w),
             return_dict=False,
         )[0]
-        return out.float()
+        return self._wide(out)

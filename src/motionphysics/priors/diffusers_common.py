@@ -213,6 +213,11 @@ class DiffusersPrior(VideoPrior):
         return super().set_prompt(prompt, negative_prompt or self.negative_prompt)
 
     # --- helpers for the subclasses ---------------------------------------------------
+    @staticmethod
+    def _wide(x: torch.Tensor) -> torch.Tensor:
+        """Half-precision network outputs to float32 (float32 / float64 kept)."""
+        return x if x.dtype in (torch.float32, torch.float64) else x.float()
+
     def _posterior_sample(self, dist, generator: torch.Generator | None) -> torch.Tensor:
         if self.posterior == "mode":
             return dist.mode()

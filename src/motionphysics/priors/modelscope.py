@@ -155,12 +155,12 @@ class ModelScopePrior(DiffusersPrior):
         x = (x * 2.0 - 1.0).permute(0, 3, 1, 2)  # [F, 3, H, W] in [-1, 1]
         dist = self.vae.encode(x.to(self.device, self.dtype)).latent_dist
         z = self._posterior_sample(dist, generator) * self.scaling_factor  # [F, C, h, w]
-        return z.unsqueeze(0).float()  # [1, F, C, h, w]
+        return self._wide(z.unsqueeze(0))  # [1, F, C, h, w]
 
     def decode(self, latents: Tensor) -> Tensor:
         z = latents[0].to(self.device, self.dtype) / self.scaling_factor  # [F, C, h, w]
         frames = self.vae.decode(z).sample  # [F, 3, H, W] in [-1, 1]
-        return ((frames.float() + 1.0) / 2.0).permute(0, 2, 3, 1)
+        return ((self._wide(frames) + 1.0) / 2.0).permute(0, 2, 3, 1)
 
     def model_output(self, z_t: Tensor, t: Tensor, text: Tensor) -> Tensor:
         b = z_t.shape[0]
@@ -170,4 +170,4 @@ class ModelScopePrior(DiffusersPrior):
             encoder_hidden_states=text.to(self.device, self.dtype),
             return_dict=False,
         )[0]
-        return out.permute(0, 2, 1, 3, 4).float()
+        return self._wide(out.permute(0, 2, 1, 3, 4))
