@@ -64,7 +64,7 @@ def two_iterations_move_theta(loss, frames: int = 6, lr: float = 0.05):
         pred = Prediction(frame_indices=tuple(range(frames)), rgb=rgb)
         value = loss(pred, LossContext(iteration=it, num_frames=24, rng=rng))
         (g,) = torch.autograd.grad(value, theta)
-        values.append(float(value))
+        values.append(float(value.detach()))
         grads.append(float(g))
         with torch.no_grad():
             theta -= lr * g / max(abs(float(g)), 1e-12)  # a normalised step: moves when g != 0
