@@ -37,7 +37,13 @@ the paper and offers the code's choice as an option:
 the guided difference ``g (x̂0_c − x̂0_u)`` remains, so the part of the signal that
 rewards clips that are merely easy to denoise (a prototype found the absolute loss pulls
 every prompt toward "less motion", ``research/prior-prototype.md``) cancels; with g = 0
-the loss is flat. This is an option, not the paper's loss.
+the loss is flat. This is an option, not the paper's loss. Measured with an exact
+(Gaussian, Bayes-optimal) prior in ``benchmarks/lmd_forms.py`` -- prompt mode m = 1,
+unconditional mode 0, m optimised through this loss: ``absolute`` reaches 1.00 at g = 1,
+3.61 at 7.5 and 4.11 at 100; ``classifier_score`` reaches 4.14 at every g (the maximiser
+of the noisy likelihood ratio, averaged over t). So at the paper's g = 100 the two forms
+nearly coincide; they differ at low guidance, where ``absolute`` keeps the "easy to
+denoise" pull of an imperfect prior and ``classifier_score`` removes it.
 
 The Gaussian perturbation (paper Suppl. D: centres ``+ ε N(0, I)``, SH coefficients
 ``+ 2ε N(0, I)``, ε = 0.1, drawn once per iteration and used only for this loss's render,
