@@ -370,3 +370,24 @@ def test_resample_frames_keeps_ends_and_is_linear():
     torch.testing.assert_close(out[-1], fr[-1])
     torch.testing.assert_close(out[1], 0.5 * (fr[0] + fr[1]))
     assert resample_frames(fr, 3, 12, 4).shape == (3, 12, 4, 3)
+
+
+def test_default_size_is_paper_256_capped_by_native():
+    p = load_prior("cogvideox", str(tiny_dir("cogvideox")))
+    # the tiny transformer's sample size is 2x2 latents (16 px) and 9 frames
+    assert (p.num_frames, p.height, p.width) == (9, 16, 16)
+    q = load_prior("modelscope", str(tiny_dir("modelscope")))
+    assert (q.num_frames, q.height, q.width) == (16, 16, 16)
+
+
+def test_diffusers_dummy_layout_runs_lmd_with_defaults(tmp_path):
+    """A pipeline laid out as diffusers' own dummy (other sizes than ours), default options."""
+    from loss_helpers import build, two_iterations_move_theta
+    from tiny_pipelines import write_diffusers_dummy_modelscope
+
+    root = write_diffusers_dummy_modelscope(tmp_path / "ms")
+    p = load_prior("modelscope", str(root), num_frames=4)
+    assert (p.height, p.width) == (32, 32) and p.latent_shape() == (1, 4, 4, 32, 32)
+    loss = build("lmd", p)
+    values, grads, theta = two_iterations_move_theta(loss)
+    assert all(torch.isfinite(torch.tensor(values))) and all(g != 0 for g in grads)

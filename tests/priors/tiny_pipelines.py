@@ -286,3 +286,66 @@ def load_tiny(kind: str, **options):
 
     name = "modelscope" if kind == "modelscope" else "cogvideox"
     return load_prior(name, str(tiny_dir(kind)), **{**TINY_OPTIONS[kind], **options})
+
+
+def write_diffusers_dummy_modelscope(directory, *, seed: int = 0) -> Path:
+    """ModelScope with exactly diffusers' own dummy components (the removed
+    tests/pipelines/text_to_video_synthesis test: a one-block VAE of spatial scale 1,
+    sample_size 32, CLIP width 4), a different layout from :func:`write_tiny_modelscope`."""
+    import torch
+    from diffusers import AutoencoderKL, DDIMScheduler, TextToVideoSDPipeline, UNet3DConditionModel
+    from transformers import CLIPTextConfig, CLIPTextModel
+
+    directory = Path(directory)
+    tokenizer = tiny_clip_tokenizer(model_max_length=77)
+    torch.manual_seed(seed)
+    unet = UNet3DConditionModel(
+        block_out_channels=(4, 8),
+        layers_per_block=1,
+        sample_size=32,
+        in_channels=4,
+        out_channels=4,
+        down_block_types=("CrossAttnDownBlock3D", "DownBlock3D"),
+        up_block_types=("UpBlock3D", "CrossAttnUpBlock3D"),
+        cross_attention_dim=4,
+        attention_head_dim=4,
+        norm_num_groups=2,
+    )
+    scheduler = DDIMScheduler(
+        beta_start=0.00085,
+        beta_end=0.012,
+        beta_schedule="scaled_linear",
+        clip_sample=False,
+        set_alpha_to_one=False,
+    )
+    torch.manual_seed(seed)
+    vae = AutoencoderKL(
+        block_out_channels=(8,),
+        in_channels=3,
+        out_channels=3,
+        down_block_types=["DownEncoderBlock2D"],
+        up_block_types=["UpDecoderBlock2D"],
+        latent_channels=4,
+        sample_size=32,
+        norm_num_groups=2,
+    )
+    torch.manual_seed(seed)
+    text_encoder = CLIPTextModel(
+        CLIPTextConfig(
+            bos_token_id=tokenizer.bos_token_id,
+            eos_token_id=tokenizer.eos_token_id,
+            hidden_size=4,
+            intermediate_size=16,
+            layer_norm_eps=1e-05,
+            num_attention_heads=2,
+            num_hidden_layers=2,
+            pad_token_id=tokenizer.pad_token_id,
+            vocab_size=len(tokenizer),
+            hidden_act="gelu",
+            projection_dim=32,
+        )
+    )
+    TextToVideoSDPipeline(
+        vae=vae, text_encoder=text_encoder, tokenizer=tokenizer, unet=unet, scheduler=scheduler
+    ).save_pretrained(directory)
+    return directory

@@ -33,6 +33,7 @@ from motionphysics.priors.diffusers_common import (
     DiffusersPrior,
     DiffusersPriorOptions,
     configure_vae,
+    default_side,
     load_model,
     load_scheduler,
     load_tokenizer,
@@ -74,11 +75,21 @@ class CogVideoXPrior(DiffusersPrior):
         tokenizer=None,
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
-        num_frames: int = 17,
-        height: int = 256,
-        width: int = 256,
+        num_frames: int | None = None,
+        height: int | None = None,
+        width: int | None = None,
         **kwargs,
     ):
+        spatial = 2 ** (len(vae.config.block_out_channels) - 1)
+        side = spatial * int(transformer.config.patch_size)
+        height = default_side(height, transformer.config.sample_height * spatial, side)
+        width = default_side(width, transformer.config.sample_width * spatial, side)
+        if num_frames is None:
+            # 17 = 4·4+1, the trained 4k+1 count nearest the paper's 16 frames; fewer
+            # where the transformer's sample_frames says the model saw fewer.
+            k = int(vae.config.temporal_compression_ratio)
+            native = int(transformer.config.sample_frames)
+            num_frames = 17 if native >= 17 else max(1, (native - 1) // k * k + 1)
         super().__init__(
             scheduler=scheduler,
             device=device,
@@ -126,7 +137,8 @@ class CogVideoXPrior(DiffusersPrior):
         """Load from a diffusers CogVideoX directory (or hub id).
 
         ``options`` are :class:`DiffusersPriorOptions` fields (``num_frames`` 17 by
-        default: the 4k+1 count nearest the paper's 16 frames)."""
+        default: the 4k+1 count nearest the paper's 16 frames; 256² unless the model's
+        native sample size is smaller)."""
         opts = parse_options(DiffusersPriorOptions, "cogvideox", options)
         md = open_model_dir(path, prior="cogvideox", hub_id=HUB_ID, components=COMPONENTS)
         dev = torch.device(device)
@@ -158,7 +170,7 @@ class CogVideoXPrior(DiffusersPrior):
             tokenizer=None,
             device=dev,
             dtype=dt,
-            num_frames=opts.num_frames or 17,
+            num_frames=opts.num_frames,
             height=opts.height,
             width=opts.width,
             model_dir=md,

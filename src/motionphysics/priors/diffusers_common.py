@@ -28,10 +28,12 @@ class DiffusersPriorOptions(BaseModel):
     num_frames: int | None = Field(default=None, ge=1)
     """Frames per clip the prior sees (rendered clips are resampled to this).
     None: the backend's default (CogVideoX 17 = 4·4+1, ModelScope 16)."""
-    height: int = Field(default=256, ge=8)
-    """Pixel height the prior runs at (the paper: 256)."""
-    width: int = Field(default=256, ge=8)
-    """Pixel width the prior runs at (the paper: 256)."""
+    height: int | None = Field(default=None, ge=8)
+    """Pixel height the prior runs at. None: the paper's 256, or the model's native
+    sample height (from its configs) where that is smaller -- a model is never run above
+    the size it was trained at unless asked."""
+    width: int | None = Field(default=None, ge=8)
+    """Pixel width the prior runs at (None: as ``height``, from the native sample width)."""
     dtype: str | None = None
     """Network dtype: float32 / float16 / bfloat16 (float64 for gradient checks). None: float32 on CPU; on CUDA the
     dtype the model was trained in (CogVideoX-5b-style RoPE models bf16, -2b fp16,
@@ -135,6 +137,18 @@ def load_tokenizer(md: ModelDir):
         except Exception as err:  # try the next loader; report the first failure
             errors.append(err)
     raise load_failed(md, "tokenizer", errors[0]) from None
+
+
+PAPER_SIDE = 256
+"""The paper's (and the released code's) prior resolution: renders resized to 256²."""
+
+
+def default_side(requested: int | None, native: int, multiple: int) -> int:
+    """``requested``, else min(256, native) rounded down to ``multiple`` (at least one)."""
+    if requested is not None:
+        return int(requested)
+    side = min(PAPER_SIDE, int(native))
+    return max(multiple, side // multiple * multiple)
 
 
 class DiffusersPrior(VideoPrior):

@@ -26,6 +26,7 @@ from motionphysics.priors.diffusers_common import (
     DiffusersPrior,
     DiffusersPriorOptions,
     configure_vae,
+    default_side,
     load_model,
     load_scheduler,
     load_tokenizer,
@@ -62,11 +63,17 @@ class ModelScopePrior(DiffusersPrior):
         tokenizer=None,
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
-        num_frames: int = 16,
-        height: int = 256,
-        width: int = 256,
+        num_frames: int | None = None,
+        height: int | None = None,
+        width: int | None = None,
         **kwargs,
     ):
+        spatial = 2 ** (len(vae.config.block_out_channels) - 1)
+        side = spatial * 2 ** (len(unet.config.block_out_channels) - 1)
+        native = int(unet.config.sample_size) * spatial
+        height = default_side(height, native, side)
+        width = default_side(width, native, side)
+        num_frames = 16 if num_frames is None else num_frames
         super().__init__(
             scheduler=scheduler,
             device=device,
@@ -123,7 +130,7 @@ class ModelScopePrior(DiffusersPrior):
             scheduler=scheduler,
             device=dev,
             dtype=dt,
-            num_frames=opts.num_frames or 16,
+            num_frames=opts.num_frames,
             height=opts.height,
             width=opts.width,
             model_dir=md,
