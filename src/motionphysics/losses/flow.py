@@ -48,8 +48,9 @@ class FlowLoss(Loss):
         """Local path of torchvision's raft_large state dict (``estimator: raft`` only)."""
         sample_steps: int = Field(default=10, ge=1)
         """DDIM steps for the reference clip."""
-        sample_guidance: float = Field(default=6.0, ge=0.0)
-        """CFG scale for the reference clip (CogVideoX's pipeline default 6)."""
+        guidance: float = Field(default=6.0, ge=0.0)
+        """CFG scale for *sampling* the reference clip (the pipelines' default 6; the
+        distillation guidance of lmd / sds, 100, would ruin a sampled clip)."""
         flow_size: int | None = Field(default=None, ge=8)
         """Square side the flow is computed at (None: the prior's resolution)."""
         alpha: float = Field(default=0.05, gt=0.0)
@@ -76,7 +77,7 @@ class FlowLoss(Loss):
             self.prior,
             prompt,
             steps=o.sample_steps,
-            guidance=o.sample_guidance,
+            guidance=o.guidance,
             seed=seed,
             out_dir=out_dir,
             duration_s=duration_s,

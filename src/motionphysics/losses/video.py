@@ -39,8 +39,9 @@ class VideoLoss(Loss):
         """w of the D-SSIM term; the L2 term has 1 − w (PhysDreamer: 0.9)."""
         sample_steps: int = Field(default=10, ge=1)
         """DDIM steps for the reference clip."""
-        sample_guidance: float = Field(default=6.0, ge=0.0)
-        """CFG scale for the reference clip."""
+        guidance: float = Field(default=6.0, ge=0.0)
+        """CFG scale for *sampling* the reference clip (the pipelines' default 6; the
+        distillation guidance of lmd / sds, 100, would ruin a sampled clip)."""
 
     def __init__(
         self,
@@ -58,7 +59,7 @@ class VideoLoss(Loss):
             self.prior,
             prompt,
             steps=o.sample_steps,
-            guidance=o.sample_guidance,
+            guidance=o.guidance,
             seed=seed,
             out_dir=out_dir,
             duration_s=duration_s,

@@ -136,7 +136,6 @@ def run_prior_bench(
             f"bench prior --size full --model {model}: the published size needs a GPU "
             "(tens of GB, hours per iteration on a CPU); use --device cuda or --size tiny"
         )
-    torch.set_num_threads(max(1, torch.get_num_threads()))
     from motionphysics.losses.base import LossContext, Prediction
     from motionphysics.losses.lmd import LmdLoss
 
