@@ -27,6 +27,10 @@ LOSSES: Registry[type[Loss]] = Registry(
     {
         "video_match": "motionphysics.losses.video_match:VideoMatchLoss",
         "trajectory_match": "motionphysics.losses.trajectory_match:TrajectoryMatchLoss",
+        "lmd": "motionphysics.losses.lmd:LmdLoss",
+        "sds": "motionphysics.losses.sds:SdsLoss",
+        "flow": "motionphysics.losses.flow:FlowLoss",
+        "video": "motionphysics.losses.video:VideoLoss",
     },
 )
 

@@ -34,9 +34,37 @@ from typing import ClassVar, Literal
 import torch
 from torch import Tensor
 
-__all__ = ["GuidedPrediction", "TextEmbeddings", "VideoPrior"]
+__all__ = ["GuidedPrediction", "TextEmbeddings", "VideoPrior", "resample_frames"]
 
 PredictionType = Literal["epsilon", "v_prediction"]
+
+
+def resample_frames(frames: Tensor, num_frames: int, height: int, width: int) -> Tensor:
+    """[T, H, W, 3] -> [num_frames, height, width, 3], differentiable.
+
+    Space: bilinear (``align_corners=False``, what the released MotionPhysics code uses to
+    bring renders to 256²; the aspect ratio is not preserved). Time: linear with the first
+    and last frames kept (``align_corners=True``), so a clip keeps its start and end
+    states whatever its frame count. Identity when the shape already matches.
+    """
+    import torch.nn.functional as F
+
+    if frames.dim() != 4 or frames.shape[-1] != 3:
+        raise ValueError(f"frames must be [T, H, W, 3], got {tuple(frames.shape)}")
+    x = frames.permute(3, 0, 1, 2).unsqueeze(0)  # [1, 3, T, H, W]
+    t, h, w = x.shape[2:]
+    if (h, w) != (height, width):
+        flat = x.permute(0, 2, 1, 3, 4).reshape(t, 3, h, w)
+        flat = F.interpolate(flat, size=(height, width), mode="bilinear", align_corners=False)
+        x = flat.reshape(1, t, 3, height, width).permute(0, 2, 1, 3, 4)
+    if t != num_frames:
+        if t == 1:
+            x = x.expand(-1, -1, num_frames, -1, -1)
+        else:
+            x = F.interpolate(
+                x, size=(num_frames, height, width), mode="trilinear", align_corners=True
+            )
+    return x.squeeze(0).permute(1, 2, 3, 0)
 
 
 @dataclass(frozen=True)
@@ -65,6 +93,11 @@ class GuidedPrediction:
     """[B, F_lat, C, h, w] unconditional ε̂."""
     t: Tensor
     """[B] the timesteps used."""
+    x0_cond: Tensor | None = None
+    """[B, F_lat, C, h, w] conditional x̂0 (no guidance)."""
+    x0_uncond: Tensor | None = None
+    """[B, F_lat, C, h, w] unconditional x̂0 (so ``x0 - x0_uncond`` is the guided difference
+    ``g (x̂0_c - x̂0_u)`` of the classifier-score forms)."""
 
 
 class VideoPrior(ABC):
@@ -108,10 +141,12 @@ class VideoPrior(ABC):
         """Encode ``prompt`` and ``negative_prompt`` with the prior's text encoder."""
 
     @abstractmethod
-    def encode(self, frames: Tensor) -> Tensor:
+    def encode(self, frames: Tensor, generator: torch.Generator | None = None) -> Tensor:
         """[T, H, W, 3] frames in [0, 1] -> [1, F_lat, C, h, w] scaled latents, differentiable.
 
-        Resizes to ``(height, width)`` and resamples to ``num_frames`` first."""
+        Resizes to ``(height, width)`` and resamples to ``num_frames`` first. A VAE with a
+        Gaussian posterior draws its sample from ``generator`` (so a loss that fixes its
+        generator is deterministic)."""
 
     @abstractmethod
     def decode(self, latents: Tensor) -> Tensor:
@@ -166,15 +201,21 @@ class VideoPrior(ABC):
         on the raw output (v or ε), one batched call over [uncond; cond]."""
         text = self.text
         b = z_t.shape[0]
+        # Guidance arithmetic in float32 (float64 when the caller works in float64, as
+        # gradient checks do), whatever the network's dtype, as the pipelines do.
+        ft = torch.float64 if z_t.dtype == torch.float64 else torch.float32
         with torch.no_grad():
             emb = torch.cat([text.uncond.expand(b, -1, -1), text.cond.expand(b, -1, -1)])
-            raw = self.model_output(torch.cat([z_t, z_t]), torch.cat([t, t]), emb).float()
+            raw = self.model_output(torch.cat([z_t, z_t]), torch.cat([t, t]), emb).to(ft)
             out_u, out_c = raw.chunk(2)
             out = out_u + guidance * (out_c - out_u)
-            x0, eps = self.to_x0_eps(out, z_t.float(), t)
-            _, eps_c = self.to_x0_eps(out_c, z_t.float(), t)
-            _, eps_u = self.to_x0_eps(out_u, z_t.float(), t)
-        return GuidedPrediction(x0=x0, eps=eps, eps_cond=eps_c, eps_uncond=eps_u, t=t)
+            zf = z_t.to(ft)
+            x0, eps = self.to_x0_eps(out, zf, t)
+            x0_c, eps_c = self.to_x0_eps(out_c, zf, t)
+            x0_u, eps_u = self.to_x0_eps(out_u, zf, t)
+        return GuidedPrediction(
+            x0=x0, eps=eps, eps_cond=eps_c, eps_uncond=eps_u, t=t, x0_cond=x0_c, x0_uncond=x0_u
+        )
 
     def latent_shape(self) -> tuple[int, ...]:
         """[1, F_lat, C, h, w] of one clip's latent (from encoding a black clip)."""
