@@ -224,7 +224,7 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
         "squash",
         r"squash\w*|flatten\w*|(?:pressed|pushed|squeezed|crushed) flat|crush\w*|compress\w*"
         r"|smash\w*|pancake\w*|dent\w*|squish\w*|flat\b",
-        [("flatten", _H, 1.0), ("deform", _H, 0.5), ("spread", _L, 0.5), ("tall", _L, 0.5)],
+        [("flatten", _H, 1.0), ("deform", _H, 0.5), ("spread", _L, 1.0), ("tall", _L, 0.5)],
     ),
     (
         "stay",
@@ -275,7 +275,7 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
     ),
     (
         "roll",
-        r"roll\w*|slid\w*|glid\w*|skid\w*|travel\w*|across the (?:floor|ground|table)",
+        r"roll\w*|slid\w*|glid\w*|skid\w*|travel\w*",
         [("travel", _H, 1.0)],
     ),
     (
