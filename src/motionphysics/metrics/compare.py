@@ -178,7 +178,8 @@ def compare_runs(
                 m = json.loads(mp.read_text())
             except ValueError:
                 m = {}
-        if "ecms" not in m or "motion_adherence" not in m:
+        # evaluated with every metric, and against the run's own prompt (not an --prompt)
+        if "ecms" not in m or "motion_adherence" not in m or m.get("prompt_source") == "--prompt":
             m = evaluate_run(p, write=False)
         entries.append(
             {"path": p, "params": files["params"], "metrics": m, "video": files["video_path"]}
