@@ -28,6 +28,7 @@ COMMANDS = [
     "simulate",
     "fit",
     "eval",
+    "compare",
     "init",
 ]
 

@@ -1,29 +1,40 @@
-"""``motionphysics eval RUN_DIR``: (re)compute ``metrics.json`` from a run's trajectory.
+"""``motionphysics eval RUN_DIR``: (re)compute ``metrics.json`` from a run's files.
 
-Physical diagnostics (energies, volume ratio, displacement, height and spread ratios,
-oscillation) from ``trajectory.npz``; prints the key figures.
+ECMS (optical flow of video.mp4), CLIPSIM and OC (when their local weights are given;
+null with the reason otherwise), motion adherence of the prompt (or of ``--prompt``)
+measured from trajectory.npz, and the physical diagnostics; prints a short table.
 """
 
 from __future__ import annotations
 
 
 def _main(args) -> int:
-    from motionphysics.io.rundir import RunDirectory, read_trajectory
-    from motionphysics.pipeline import write_metrics
+    from motionphysics.metrics.ecms import ECMSConfig
+    from motionphysics.metrics.evaluate import evaluate_run, summary_lines
 
-    rd = RunDirectory(args.run_dir, create=False)
-    traj = read_trajectory(rd.path / "trajectory.npz")
-    m = write_metrics(rd, traj)
+    ecfg = ECMSConfig(
+        bracketing=args.ecms_bracketing,
+        flow_height=None if args.flow_height == 0 else args.flow_height,
+        eps=args.ecms_eps,
+    ).check()
+    m = evaluate_run(
+        args.run_dir,
+        prompt=args.prompt,
+        clip=args.clip,
+        viclip=args.viclip,
+        viclip_bpe=args.viclip_bpe,
+        raft=args.raft,
+        flow=args.flow,
+        ecms_config=ecfg,
+        device=args.device,
+    )
     if not args.quiet:
-        print(f"metrics:   {rd.path / 'metrics.json'}")
+        from pathlib import Path
+
+        print(f"metrics:   {Path(args.run_dir) / 'metrics.json'}")
         print(f"frames {m['frames']}, particles {m['particles']}, duration {m['duration_s']:.3g} s")
-        print(
-            f"final height / initial {m['final_height_ratio']:.3f}; spread ratio {m['spread_ratio']:.3f}; "
-            f"max displacement {m['max_displacement']:.3g} m; max speed {m['max_speed']:.3g} m/s"
-        )
-        if "volume_ratio" in m:
-            vr = m["volume_ratio"]
-            print(f"volume ratio det F in [{vr['overall_min']:.3f}, {vr['overall_max']:.3f}]")
+        for line in summary_lines(m):
+            print(line)
     return 0
 
 
@@ -34,5 +45,44 @@ def register(subparsers) -> None:
         "eval", help="write metrics.json for a run directory", description=__doc__.split("\n\n")[0]
     )
     p.add_argument("run_dir", metavar="RUN_DIR", help="a run directory (holds trajectory.npz)")
+    p.add_argument("--prompt", default=None, help="score this sentence instead of the run's prompt")
+    p.add_argument(
+        "--clip", default=None, metavar="DIR", help="local transformers CLIP ViT-L/14 folder"
+    )
+    p.add_argument(
+        "--viclip", default=None, metavar="PATH", help="local ViClip-InternVid-10M-FLT.pth"
+    )
+    p.add_argument(
+        "--viclip-bpe",
+        default=None,
+        metavar="PATH",
+        help="BPE merges for ViCLIP (bpe_simple_vocab_16e6.txt.gz or merges.txt; default: beside --viclip)",
+    )
+    p.add_argument(
+        "--raft", default=None, metavar="PATH", help="local RAFT-large weights (--flow raft)"
+    )
+    p.add_argument(
+        "--flow", default="dis", choices=("dis", "farneback", "raft"), help="optical flow for ECMS"
+    )
+    p.add_argument(
+        "--flow-height",
+        type=int,
+        default=256,
+        metavar="ROWS",
+        help="frames are resized to this many rows before the flow (0: native size)",
+    )
+    p.add_argument(
+        "--ecms-bracketing",
+        default="paper",
+        choices=("paper", "reciprocal_sum"),
+        help="paper: 1/(A+eps)+B+C as typeset; reciprocal_sum: 1/(A+B+C+eps)",
+    )
+    p.add_argument(
+        "--ecms-eps",
+        type=float,
+        default=1e-3,
+        help="added to the motion sum (finite for a still video)",
+    )
+    p.add_argument("--device", default="cpu", help="torch device for CLIP / ViCLIP / RAFT")
     add_display_options(p)
     p.set_defaults(func=_main)

@@ -15,7 +15,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["render_report", "write_report", "UNITS"]
+__all__ = ["render_report", "write_report", "physical_rows", "UNITS"]
 
 UNITS = {
     "density": "kg/m³",
@@ -55,6 +55,42 @@ def _fmt(v: Any) -> str:
         a = abs(v)
         return f"{v:.4g}" if 1e-3 <= a < 1e5 else f"{v:.3e}"
     return html.escape(str(v))
+
+
+def physical_rows(metrics: Mapping[str, Any]) -> list[tuple[str, Any, str]]:
+    """(label, value, unit) rows of the report's "Physical diagnostics" table."""
+    ext = metrics.get("final_extent_ratio", metrics.get("final_height_ratio"))
+    rows: list[tuple[str, Any, str]] = [
+        ("vertical extent, final / initial", ext, "–"),
+        (
+            "centroid height above floor, final",
+            metrics.get("final_centroid_height_above_floor"),
+            "m",
+        ),
+        ("rebound ratio (centroid rise / fall)", metrics.get("rebound_ratio"), "–"),
+        ("spread, final / initial", metrics.get("spread_ratio"), "–"),
+        ("max displacement", metrics.get("max_displacement"), "m"),
+        ("max speed", metrics.get("max_speed"), "m/s"),
+        ("max kinetic energy", metrics.get("max_kinetic_energy"), "J"),
+        ("centroid drop", metrics.get("centroid_drop"), "m"),
+    ]
+    rows = [r for r in rows if r[1] is not None]
+    vr = metrics.get("volume_ratio") or {}
+    rows += [
+        ("volume ratio det F, min", vr.get("overall_min"), "–"),
+        ("volume ratio det F, max", vr.get("overall_max"), "–"),
+    ]
+    osc = metrics.get("height_oscillation") or {}
+    f = osc.get("frequency_hz")
+    rows.append(
+        (
+            "extent oscillation",
+            f if f is not None else osc.get("frequency_reason") or None,
+            "Hz" if f else "",
+        )
+    )
+    rows.append(("extent damping ratio", osc.get("damping_ratio"), "–"))
+    return rows
 
 
 def _img_src(run_dir: Path, rel: str, inline: bool) -> str:
@@ -147,28 +183,11 @@ def render_report(
         out.append("</div>")
 
     if metrics:
-        keys = [
-            "final_height_ratio",
-            "spread_ratio",
-            "max_displacement",
-            "max_speed",
-            "max_kinetic_energy",
-            "centroid_drop",
-        ]
-        rows = [(k, metrics.get(k)) for k in keys if k in metrics]
-        vr = metrics.get("volume_ratio") or {}
-        rows += [
-            ("volume ratio min", vr.get("overall_min")),
-            ("volume ratio max", vr.get("overall_max")),
-        ]
-        osc = metrics.get("height_oscillation") or {}
-        rows += [
-            ("height oscillation [Hz]", osc.get("frequency_hz")),
-            ("height damping ratio", osc.get("damping_ratio")),
-        ]
-        out.append("<h2>Physical diagnostics</h2><table>")
-        for k, v in rows:
-            out.append(f"<tr><td>{e(k)}</td><td class='num'>{_fmt(v)}</td></tr>")
+        out.append(
+            "<h2>Physical diagnostics</h2><table><tr><th>quantity</th><th>value</th><th>unit</th></tr>"
+        )
+        for k, v, unit in physical_rows(metrics):
+            out.append(f"<tr><td>{e(k)}</td><td class='num'>{_fmt(v)}</td><td>{e(unit)}</td></tr>")
         out.append("</table>")
 
     history = params.get("history") or []
