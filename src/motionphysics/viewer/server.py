@@ -422,7 +422,8 @@ class Viewer:
                                 name,
                                 _box_edges(*box),
                                 colors=(120, 140, 170),
-                                line_width=1.5,
+                                thickness=1.5,
+                                thickness_units="screen",
                                 visible=False,
                             )
                         )
@@ -432,7 +433,8 @@ class Viewer:
                             name,
                             _box_edges(*bc.box),
                             colors=(230, 140, 30),
-                            line_width=2.0,
+                            thickness=2.0,
+                            thickness_units="screen",
                             visible=False,
                         )
                     )

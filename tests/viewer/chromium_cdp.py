@@ -12,6 +12,7 @@ import base64
 import io
 import json
 import shutil
+import socket
 import subprocess
 import tempfile
 import time
@@ -37,6 +38,13 @@ CHROMIUM_FLAGS = [
     "--ignore-gpu-blocklist",
     "--remote-debugging-port=0",
 ]
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 def find_chromium() -> str | None:
