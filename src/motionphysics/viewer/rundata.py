@@ -10,7 +10,11 @@ What the viewer needs from a run directory (DESIGN.md, "Run directory")::
 
 and, when present, ``log.jsonl`` (loss and parameters per iteration) and
 ``metrics.json``. A directory that lacks a required file or array is a
-:class:`~motionphysics.errors.UserInputError` naming what is missing.
+:class:`~motionphysics.errors.UserInputError` naming what is missing, with one
+exception, for runs written before run directories held ``scene.ply``: when only
+``scene.ply`` is missing, the rest splats are rebuilt from run.yaml's scene exactly
+as the run prepared them (``load_scene`` + ``prepare``), accepted only if they match
+the trajectory's ``splat_parent`` and ``splat_offset``, and the viewer says so.
 
 ``x`` and ``F`` are not read whole: ``np.savez`` stores members uncompressed, so each
 is memory-mapped in place inside the ``.npz`` and a frame is read when it is asked
@@ -160,8 +164,32 @@ def _read_jsonl(path: Path) -> list[dict[str, Any]]:
     return out
 
 
-def load_run(path: str | Path) -> RunData:
-    """Open a run directory for viewing; a directory that is not a run is a one-line error."""
+def _rebuild_splats(path: Path, config, parent: np.ndarray, offset: np.ndarray):
+    """Rest splats of a run without scene.ply, prepared again from its run.yaml."""
+    from motionphysics.scene import load_scene, prepare
+
+    scene = load_scene(config.scene.source)
+    sim_scene = prepare(scene, config.scene, config.sim, list(config.boundary_conditions))
+    par = sim_scene.splat_parent.detach().cpu().numpy()
+    off = sim_scene.splat_offset.detach().cpu().numpy()
+    if (
+        par.shape != parent.shape
+        or not np.array_equal(par, parent)
+        or not np.allclose(off, offset, atol=1e-5)
+    ):
+        raise UserInputError(
+            f"{path}: missing scene.ply, and the splats prepared again from run.yaml's "
+            f"scene.source ({config.scene.source}) do not match trajectory.npz's splat_parent"
+        )
+    return sim_scene.splats
+
+
+def load_run(path: str | Path, notes: list[str] | None = None) -> RunData:
+    """Open a run directory for viewing; a directory that is not a run is a one-line error.
+
+    ``notes`` (when given) receives one line per thing the viewer had to do that a
+    person should know (e.g. rest splats rebuilt because scene.ply is missing).
+    """
     from motionphysics.config import load_config
     from motionphysics.scene.ply import read_ply
 
@@ -169,7 +197,8 @@ def load_run(path: str | Path) -> RunData:
     if not path.is_dir():
         raise UserInputError(f"{path}: not a run directory (no such directory)")
     missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
-    if missing:
+    rebuild = missing == ["scene.ply"]
+    if missing and not rebuild:
         raise UserInputError(
             f"{path}: not a viewable run directory: missing {', '.join(missing)} "
             f"(a run holds {', '.join(REQUIRED_FILES)})"
@@ -200,7 +229,16 @@ def load_run(path: str | Path) -> RunData:
         raise UserInputError(f"{npz}: F must be {[T, P, 3, 3]} like x, got {list(F.shape)}")
     if t.shape != (T,):
         raise UserInputError(f"{npz}: t must be [{T}], got {list(t.shape)}")
-    splats = read_ply(path / "scene.ply")
+    config = load_config(path / "run.yaml")
+    if rebuild:
+        splats = _rebuild_splats(path, config, parent, offset)
+        if notes is not None:
+            notes.append(
+                f"{path}: no scene.ply; rest splats prepared again from run.yaml's scene "
+                f"({config.scene.source}), matching the trajectory's splat_parent"
+            )
+    else:
+        splats = read_ply(path / "scene.ply")
     N = splats.num
     if parent.shape != (N,) or offset.shape != (N, 3):
         raise UserInputError(
@@ -209,7 +247,6 @@ def load_run(path: str | Path) -> RunData:
         )
     if N and (parent.min() < 0 or parent.max() >= P):
         raise UserInputError(f"{npz}: splat_parent indexes particles outside 0..{P - 1}")
-    config = load_config(path / "run.yaml")
     params = _read_json(path / "params.json")
     if not isinstance(params, dict):
         raise UserInputError(f"{path / 'params.json'}: expected a JSON object")

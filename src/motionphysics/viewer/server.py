@@ -674,7 +674,10 @@ def start_view(
     """Load the runs, start the viewer, print its URL; returns the running :class:`Viewer`."""
     from motionphysics.viewer.rundata import load_run
 
-    runs = [load_run(p) for p in run_dirs]
+    notes: list[str] = []
+    runs = [load_run(p, notes) for p in run_dirs]
+    for line in notes:
+        print(f"motionphysics view: {line}", file=out if out is not None else sys.stdout)
     viewer = Viewer(runs, host=host, port=port, frame=frame, max_splats=max_splats, out=out)
     viewer.start()
     return viewer
