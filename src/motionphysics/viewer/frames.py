@@ -26,6 +26,8 @@ DEFAULT_MAX_SPLATS = 300_000
 """Splats sent to the browser per frame before subsampling (~10 MB per frame at 32 B each)."""
 LARGE_RUN_SPLAT_FRAMES = 100_000 * 100
 """Splats x frames from which a run counts as large (said on stdout and in the panel)."""
+CACHE_BYTES = 128 * 2**20
+"""Memory the cache of computed frames may hold (a frame is 64 bytes per splat)."""
 
 
 def is_large(num_splats: int, num_frames: int) -> bool:
@@ -60,7 +62,7 @@ class FrameSource:
             view direction of view-dependent colour (the run's camera: the colours of
             the video).
         max_splats: subsample to this many splats (None: never).
-        cache: frames kept.
+        cache: frames kept at most (fewer when they would exceed ``CACHE_BYTES``).
         seed: of the subsample.
     """
 
@@ -94,7 +96,8 @@ class FrameSource:
         self._local_parent = torch.from_numpy(inverse.astype(np.int64))
         self._opacities = self._splats.opacities.detach().numpy().astype(np.float32)[:, None]
         self._cache: OrderedDict[int, Frame] = OrderedDict()
-        self._cache_size = max(1, int(cache))
+        frame_bytes = 64 * max(self._splats.num, 1)  # means, covs, colours, opacity: float32
+        self._cache_size = max(1, min(int(cache), CACHE_BYTES // frame_bytes))
         self._lock = threading.Lock()
 
     @property
