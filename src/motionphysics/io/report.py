@@ -249,7 +249,7 @@ def svg_curve(
     x0, x1 = min(x for x, _ in pts), max(x for x, _ in pts)
     if x1 == x0:
         x0, x1 = x0 - 0.5, x1 + 0.5
-    left, right, top, bottom = 52, 10, 22, 28
+    left, right, top, bottom = 66, 10, 22, 28
     pw, ph = width - left - right, height - top - bottom
 
     def px(x):
