@@ -333,6 +333,15 @@ class Viewer:
         self.server.scene.world_axes.visible = False
         self._build_gui()
         self._build_scene_nodes()
+
+        @self.server.on_client_connect
+        def _(client) -> None:  # called once the client has reported its canvas size
+            v = self.views[self.current]
+            cc = client.camera
+            fov = self.client_fov(v.view, cc.image_width, cc.image_height)
+            if abs(fov - float(v.view["fov"])) > 1e-6:
+                cc.fov = fov
+
         self.select_run(0)
         self._player = threading.Thread(target=self._play_loop, name="mp-view-play", daemon=True)
         self._player.start()
@@ -477,13 +486,29 @@ class Viewer:
         ic.fov = float(v.view["fov"])
         ic.far = float(max(1000.0, 100 * np.linalg.norm(v.view["position"] - v.view["look_at"])))
 
+    @staticmethod
+    def client_fov(view: dict[str, Any], width: int, height: int) -> float:
+        """Vertical fov [rad] for a canvas ``width x height`` showing all the run camera sees.
+
+        viser's fov is vertical: a canvas narrower than the run camera's image would
+        crop its sides, so the vertical fov widens until the horizontal one matches.
+        """
+        cam = view["camera"]
+        fov = float(view["fov"])
+        aspect_cam = cam.width / cam.height
+        if width > 0 and height > 0 and width / height < aspect_cam:
+            fov = 2.0 * math.atan(math.tan(0.5 * fov) * aspect_cam / (width / height))
+        return min(fov, math.radians(170.0))
+
     def reset_camera(self, client) -> None:
+        """Put ``client``'s camera at the run camera (start view)."""
         v = self.views[self.current]
+        cc = client.camera
         with client.atomic():
-            client.camera.up_direction = tuple(v.view["up"])
-            client.camera.position = tuple(v.view["position"])
-            client.camera.look_at = tuple(v.view["look_at"])
-            client.camera.fov = float(v.view["fov"])
+            cc.up_direction = tuple(v.view["up"])
+            cc.position = tuple(v.view["position"])
+            cc.look_at = tuple(v.view["look_at"])
+            cc.fov = self.client_fov(v.view, cc.image_width, cc.image_height)
 
     def show_frame(self, k: int) -> None:
         """Compute frame ``k`` of the current run and send it (only it) to the browsers."""
@@ -578,7 +603,10 @@ class Viewer:
         import viser
 
         gui = self.server.gui
-        gui.configure_theme(control_width="large")
+        gui.configure_theme(control_width="medium", show_share_button=False)
+        # Docked, the panel sits beside the canvas instead of over it, so the start
+        # view (the run camera, object in the middle) is never hidden behind it.
+        gui.main_panel.dock_right()
         if len(self.views) > 1:
             labels = [f"{i}: {v.run.name}" for i, v in enumerate(self.views)]
             self._gui_run = gui.add_dropdown("Run", labels, initial_value=labels[0])
