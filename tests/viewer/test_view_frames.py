@@ -223,3 +223,51 @@ def test_run_without_scene_ply_is_prepared_again(tiny_run, tmp_path):
     for name in ("means", "log_scales", "quats", "logit_opacities", "sh"):
         np.testing.assert_allclose(getattr(data.splats, name), getattr(ref, name), atol=1e-6)
     assert len(notes) == 1 and "no scene.ply" in notes[0]
+
+
+def _donut() -> Path | None:
+    """The real 3DGS capture (shared/data/real/donut.ply beside the repository)."""
+    import os
+
+    roots = [Path(__file__).resolve().parents[2].parent / "shared"]
+    if os.environ.get("MOTIONPHYSICS_SHARED"):
+        roots.insert(0, Path(os.environ["MOTIONPHYSICS_SHARED"]))
+    for root in roots:
+        path = root / "data" / "real" / "donut.ply"
+        if path.is_file():
+            return path
+    return None
+
+
+@pytest.mark.skipif(_donut() is None, reason="real capture shared/data/real/donut.ply not present")
+def test_real_capture_run_served_as_rendered(tmp_path):
+    """A run of the real donut capture (45k splats) made by the CLI: served = render.deform."""
+    from viewer_runs import make_run
+
+    from motionphysics.viewer.rundata import load_run
+    from motionphysics.viewer.server import Viewer, _camera_view
+
+    cfg = tmp_path / "donut.yaml"
+    cfg.write_text(
+        f"scene: {{source: '{_donut()}', translate: [0, 0, 0.05], max_particles: 1500}}\n"
+        "prompt: 'A soft donut drops onto the table.'\n"
+        "material: {class: elastic, density: 800, E: 2.0e5, nu: 0.3}\n"
+        "sim: {grid: 16, frames: 4, frame_dt: 0.04, substeps: auto}\n"
+        "boundary_conditions:\n"
+        "  - {type: surface_collider, point: [0, 0, 0], normal: [0, 0, 1], mode: sticky}\n"
+        "camera: {width: 64, height: 48}\n"
+    )
+    run = load_run(make_run(cfg, tmp_path / "run"))
+    assert run.num_splats > 10_000
+    cam = _camera_view(run.config)["camera"]
+    viewer = Viewer([run], port=free_port(), frame=run.num_frames - 1, out=io.StringIO())
+    viewer.start()
+    try:
+        served = viewer.served_frame()
+        m, c, col = _reference(run, run.num_frames - 1, cam)
+        np.testing.assert_allclose(served.means, m, rtol=0, atol=2e-6)
+        scale = np.abs(c).reshape(len(c), -1).max(1)[:, None, None]
+        np.testing.assert_allclose(served.covs / scale, c / scale, rtol=0, atol=2e-3)
+        np.testing.assert_allclose(served.colors, col, rtol=0, atol=1.01 / 255)
+    finally:
+        viewer.stop()
