@@ -125,7 +125,8 @@ def _fmt(v: Any) -> str:
 
 
 def _md_escape(text: str) -> str:
-    return "".join("\\" + ch if ch in "\\`*_{}[]<>()#+-.!|" else ch for ch in str(text))
+    # Characters that change meaning anywhere in a line (tables included).
+    return "".join("\\" + ch if ch in "\\`*_{}[]<>#|" else ch for ch in str(text))
 
 
 def material_markdown(params: dict[str, Any]) -> str:
@@ -248,6 +249,7 @@ class _RunView:
         self.large = is_large(run.num_splats, run.num_frames)
         self.nodes: list[Any] = []
         self.folder = None
+        self.plots: dict[str, Any] = {}  # curve name ("loss", "param:E") -> uplot handle
 
     def streaming_note(self) -> str:
         r = self.run
@@ -677,7 +679,7 @@ class Viewer:
                     if key == "iteration" or not np.isfinite(ys).any():
                         continue
                     label = key.split(":", 1)[-1]
-                    gui.add_uplot(
+                    v.plots[key] = gui.add_uplot(
                         data=(its, ys),
                         series=(
                             {"label": "iteration"},
