@@ -331,7 +331,6 @@ class Viewer:
             raise UserInputError(
                 f"--port: port {self.port} on {self.host} is already in use; choose another with --port"
             )
-        self.server.scene.set_up_direction(self._up_direction(self.views[0]))
         self.server.scene.world_axes.visible = False
         self._build_gui()
         self._build_scene_nodes()
@@ -477,6 +476,7 @@ class Viewer:
         if self._splat_handle is not None and prev != i:
             self._splat_handle.remove()
             self._splat_handle = None
+        self.server.scene.set_up_direction(self._up_direction(v))
         self._set_start_view(v)
         self.show_frame(self._frame)
 
