@@ -30,6 +30,7 @@ COMMANDS = [
     "eval",
     "compare",
     "init",
+    "view",
 ]
 
 

@@ -59,6 +59,9 @@ class SceneConfig(_Strict):
     """Cap on simulated particles (visible + interior)."""
     max_anisotropy: float = Field(4.0, ge=1.0)
     """Cap on the ratio of largest to smallest splat scale (anisotropy regularisation)."""
+    shade: bool = True
+    """Bake a default-light shading into the colours of a mesh that has no colours or
+    texture (scene.mesh); false: flat mid grey."""
 
     @model_validator(mode="after")
     def _crop_ordered(self):

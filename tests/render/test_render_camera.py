@@ -124,3 +124,55 @@ def test_orbit_bad_input():
         orbit_camera(0, 0, -1.0)
     with pytest.raises(UserInputError, match="fov"):
         orbit_camera(0, 0, 1.0, fov=180.0)
+
+
+def _sideways_trajectory(frames: int = 10, n: int = 2000, seed: int = 0):
+    """A 0.2 m ball sliding 2 m along +x over ``frames`` frames, [T, n, 3] float32."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    ball = rng.normal(size=(n, 3))
+    ball = 0.1 * ball / np.linalg.norm(ball, axis=1, keepdims=True)
+    shift = np.linspace(0.0, 2.0, frames)[:, None, None] * np.array([1.0, 0.0, 0.0])
+    return (ball[None] + shift + np.array([0.0, 0.0, 0.1])).astype(np.float32)
+
+
+def test_trajectory_bounds_is_union_of_frames_and_ignores_strays():
+    import numpy as np
+
+    from motionphysics.render.camera import trajectory_bounds
+
+    xs = _sideways_trajectory()
+    lo, hi = trajectory_bounds(xs, 0.0, 100.0)
+    np.testing.assert_allclose(lo, xs.reshape(-1, 3).min(0), atol=1e-6)
+    np.testing.assert_allclose(hi, xs.reshape(-1, 3).max(0), atol=1e-6)
+    # One stray point 50 m away in one frame (0.05 % of the points) does not move the box.
+    xs2 = xs.copy()
+    xs2[3, 0] = (50.0, 50.0, 50.0)
+    lo2, hi2 = trajectory_bounds(xs2)
+    assert max(hi2) < 2.2 and min(lo2) > -0.2
+    # Torch input and a single frame work too.
+    lo3, hi3 = trajectory_bounds(torch.from_numpy(xs[0]), 0.0, 100.0)
+    np.testing.assert_allclose(hi3, xs[0].max(0), atol=1e-6)
+    with pytest.raises(ValueError):
+        trajectory_bounds(np.zeros((3, 0, 3)))
+
+
+def test_frame_trajectory_keeps_a_moving_object_in_view():
+    import numpy as np
+
+    from motionphysics.render.camera import frame_trajectory
+
+    xs = _sideways_trajectory()
+    W, H = 128, 96
+
+    def inside(cam, pts) -> float:
+        uv, z = cam.project(torch.from_numpy(pts.astype(np.float64)))
+        ok = (z[:, 0] > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        return float(ok.double().mean())
+
+    cam = frame_trajectory(xs, 30.0, 20.0, 45.0, W, H)
+    assert all(inside(cam, xs[t]) == 1.0 for t in range(len(xs)))
+    # Framing only the first frame (what the automatic camera did) loses the last frame.
+    first = frame_bounds(xs[0].min(0).tolist(), xs[0].max(0).tolist(), 30.0, 20.0, 45.0, W, H)
+    assert inside(first, xs[0]) == 1.0 and inside(first, xs[-1]) < 0.5

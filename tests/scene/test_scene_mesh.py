@@ -9,7 +9,13 @@ import trimesh
 
 from motionphysics.errors import UserInputError
 from motionphysics.scene import load_scene
-from motionphysics.scene.mesh import GREY, load_mesh, mesh_to_gaussians, sample_triangles
+from motionphysics.scene.mesh import (
+    GREY,
+    load_mesh,
+    mesh_to_gaussians,
+    sample_triangles,
+    shade_colours,
+)
 from motionphysics.scene.ply import ply_kind
 
 EXTENTS = np.array([1.0, 2.0, 3.0])
@@ -42,7 +48,11 @@ def _check_box_splats(s, n_expected):
     # Even (thinned) sampling on axis-aligned faces: the share follows area to within a few
     # percent (cube-grid quantisation at the face borders); i.i.d. sampling would be ~1%.
     np.testing.assert_allclose(share, areas / areas.sum(), atol=0.03)
-    np.testing.assert_allclose(s.base_colors().numpy(), np.tile(GREY, (len(p), 1)), atol=1e-6)
+    # No colours in the file: the default-light shading of the outward face normal.
+    outward = np.zeros_like(p)
+    idx = np.arange(len(p))
+    outward[idx, face_axis] = np.sign(p[idx, face_axis])
+    np.testing.assert_allclose(s.base_colors().numpy(), shade_colours(outward), atol=1e-5)
     np.testing.assert_allclose(s.opacities.numpy(), 0.9, atol=1e-6)
 
 
@@ -145,3 +155,70 @@ def test_bad_meshes(tmp_path):
     )
     with pytest.raises(UserInputError, match="area"):
         mesh_to_gaussians(flat, origin="flat.obj")
+
+
+def _splat_normals(s) -> np.ndarray:
+    """Thin (third) axis of each flat splat, [N, 3]."""
+    return s.rotation_matrices().double().numpy()[:, :, 2]
+
+
+def test_uncoloured_sphere_gets_default_light_shading():
+    from motionphysics.scene.mesh import SHADE_ALBEDO, SHADE_AMBIENT, SHADE_LIGHT
+
+    def law(s):
+        """Expected grey per splat from the documented constants (not from shade_colours)."""
+        p = s.means.double().numpy()
+        n = _splat_normals(s)  # facet normal of each splat (its thin axis) ...
+        n *= np.sign((n * p).sum(1, keepdims=True))  # ... outwards (the sphere is centred)
+        cos = n @ np.asarray(SHADE_LIGHT)
+        return cos, SHADE_ALBEDO * (SHADE_AMBIENT + (1 - SHADE_AMBIENT) * np.maximum(cos, 0.0))
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    s = mesh_to_gaussians(sphere, count=3000, seed=1)
+    cos, want = law(s)
+    got = s.base_colors().double().numpy()
+    np.testing.assert_allclose(got, np.repeat(want[:, None], 3, 1), atol=1e-5)
+    lit, dark = got[cos > 0.9, 0].mean(), got[cos < -0.3, 0].mean()
+    assert lit > 0.75 and abs(dark - SHADE_ALBEDO * SHADE_AMBIENT) < 1e-6
+    # Faces wound inwards (same closed surface): the sign is fixed, the law still holds.
+    inv = sphere.copy()
+    inv.invert()
+    s_inv = mesh_to_gaussians(inv, count=3000, seed=1)
+    _, want_inv = law(s_inv)
+    np.testing.assert_allclose(
+        s_inv.base_colors().double().numpy(), np.repeat(want_inv[:, None], 3, 1), atol=1e-5
+    )
+    # Off: flat mid grey, as before.
+    flat = mesh_to_gaussians(sphere, count=3000, seed=1, shade=False)
+    np.testing.assert_allclose(flat.base_colors().numpy(), np.tile(GREY, (flat.num, 1)), atol=1e-6)
+
+
+def test_open_mesh_is_lit_on_both_sides_and_coloured_mesh_untouched():
+    # A single square facing -z (away from the light): an open surface has no "outside",
+    # so it is lit as if it faced the light (|n . l|).
+    quad = trimesh.Trimesh(
+        vertices=[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]],
+        faces=[[0, 2, 1], [0, 3, 2]],
+        process=False,
+    )
+    s = mesh_to_gaussians(quad, count=500)
+    assert _splat_normals(s)[:, 2].max() < -0.99 or _splat_normals(s)[:, 2].min() > 0.99
+    want = shade_colours(np.tile([0.0, 0.0, 1.0], (s.num, 1)))
+    np.testing.assert_allclose(s.base_colors().numpy(), want, atol=1e-5)
+    box = trimesh.creation.box(extents=EXTENTS)
+    box.visual.face_colors = np.tile([200, 30, 40, 255], (len(box.faces), 1))
+    c = mesh_to_gaussians(box, count=500).base_colors().numpy()
+    np.testing.assert_allclose(c, np.tile(np.array([200, 30, 40]) / 255, (len(c), 1)), atol=1e-5)
+
+
+def test_scene_shade_key_and_load_scene(tmp_path):
+    from motionphysics.config import config_from_dict
+
+    assert config_from_dict({}).scene.shade is True
+    assert config_from_dict({"scene": {"shade": False}}).scene.shade is False
+    path = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=2).export(str(path))
+    shaded = load_scene(str(path)).base_colors().numpy()
+    flat = load_scene(str(path), shade=False).base_colors().numpy()
+    assert shaded.std(axis=0).max() > 0.1
+    np.testing.assert_allclose(flat, 0.5, atol=1e-6)

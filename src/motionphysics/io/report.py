@@ -15,7 +15,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["render_report", "write_report", "physical_rows", "UNITS"]
+__all__ = [
+    "render_report",
+    "write_report",
+    "physical_rows",
+    "optimisation_section_html",
+    "svg_curve",
+    "UNITS",
+]
 
 UNITS = {
     "density": "kg/m³",
@@ -218,3 +225,171 @@ def write_report(rundir, params: Mapping[str, Any], **kwargs: Any) -> Path:
     """Write ``report.html`` into a :class:`~motionphysics.io.rundir.RunDirectory`."""
     text = render_report(rundir.path, params, **kwargs)
     return rundir.write_text("report.html", text)
+
+
+# --------------------------------------------------------------------------------------
+# optimised runs: initial vs refined video, loss and parameter curves, the viewer
+# --------------------------------------------------------------------------------------
+_SECTION_CSS = (
+    ".pair{display:flex;gap:1em;flex-wrap:wrap} .pair figure{flex:1 1 300px;margin:0}"
+    " .pair video{width:100%} .curves{display:flex;flex-wrap:wrap;gap:.8em}"
+    " .curves svg{border:1px solid #eee;background:#fff} pre{background:#f6f6f6;padding:.6em 1em}"
+)
+
+
+def svg_curve(
+    xs: Sequence[float],
+    ys: Sequence[float],
+    title: str,
+    *,
+    xlabel: str = "iteration",
+    band: tuple[float, float] | None = None,
+    width: int = 300,
+    height: int = 180,
+) -> str:
+    """An inline SVG line chart of ``ys`` over ``xs`` (no scripts, no network).
+
+    Non-finite points are skipped. The y axis is logarithmic when every value (and the
+    band) is positive and they span more than a factor of 100. ``band`` = (low, high)
+    shades an allowed range (clipped to the plotted span). Returns ``""`` when there is
+    no finite point.
+    """
+    import math
+
+    pts = [
+        (float(x), float(y))
+        for x, y in zip(xs, ys, strict=False)
+        if x is not None and y is not None and math.isfinite(float(x)) and math.isfinite(float(y))
+    ]
+    if not pts:
+        return ""
+    vals = [y for _, y in pts]
+    lo_v, hi_v = min(vals), max(vals)
+    log = lo_v > 0 and hi_v / lo_v > 100 and (band is None or band[0] > 0)
+    f = (lambda v: math.log10(v)) if log else (lambda v: v)
+    y0, y1 = f(lo_v), f(hi_v)
+    if y1 - y0 < 1e-12 * max(1.0, abs(y0)):
+        y0, y1 = y0 - 0.5 * max(abs(y0), 1e-12), y1 + 0.5 * max(abs(y1), 1e-12)
+    pad = 0.08 * (y1 - y0)
+    y0, y1 = y0 - pad, y1 + pad
+    x0, x1 = min(x for x, _ in pts), max(x for x, _ in pts)
+    if x1 == x0:
+        x0, x1 = x0 - 0.5, x1 + 0.5
+    left, right, top, bottom = 66, 10, 22, 28
+    pw, ph = width - left - right, height - top - bottom
+
+    def px(x):
+        return left + (x - x0) / (x1 - x0) * pw
+
+    def py(y):
+        return top + (1.0 - (f(y) - y0) / (y1 - y0)) * ph
+
+    e = html.escape
+    out = [
+        f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' "
+        f"role='img' aria-label='{e(title)}'>",
+        f"<text x='{width / 2:.0f}' y='15' text-anchor='middle' font-size='12'>{e(title)}</text>",
+    ]
+    if band is not None:
+        b_lo, b_hi = (max(v, 10**y0 if log else y0) for v in band)
+        b_lo, b_hi = (min(v, 10**y1 if log else y1) for v in (b_lo, b_hi))
+        if b_hi > b_lo:
+            out.append(
+                f"<rect x='{left}' y='{py(b_hi):.1f}' width='{pw}' height='{py(b_lo) - py(b_hi):.1f}' "
+                "fill='#cfe8d6' opacity='0.6'><title>allowed range</title></rect>"
+            )
+    out.append(f"<rect x='{left}' y='{top}' width='{pw}' height='{ph}' fill='none' stroke='#bbb'/>")
+    path = " ".join(f"{px(x):.1f},{py(y):.1f}" for x, y in pts)
+    out.append(f"<polyline points='{path}' fill='none' stroke='#2a6' stroke-width='1.8'/>")
+    for y in (lo_v, hi_v):
+        out.append(
+            f"<text x='{left - 4}' y='{py(y) + 4:.1f}' text-anchor='end' font-size='10'>{_fmt(y)}</text>"
+        )
+    out.append(
+        f"<text x='{left}' y='{height - 8}' font-size='10'>{_fmt(x0)}</text>"
+        f"<text x='{left + pw}' y='{height - 8}' text-anchor='end' font-size='10'>{_fmt(x1)}</text>"
+        f"<text x='{left + pw / 2:.0f}' y='{height - 8}' text-anchor='middle' font-size='10'>"
+        f"{e(xlabel)}{' (log y)' if log else ''}</text>"
+    )
+    out.append("</svg>")
+    return "".join(out)
+
+
+def optimisation_section_html(
+    run_dir: str | Path,
+    params: Mapping[str, Any],
+    *,
+    history: Sequence[Mapping[str, Any]] | None = None,
+    initial_video: str | None = "video_initial.mp4",
+    refined_video: str = "video.mp4",
+    ranges: Mapping[str, tuple[float, float]] | None = None,
+    viewer_command: str | None = None,
+) -> str:
+    """HTML fragment for an optimised run, to place in ``report.html``'s body.
+
+    Holds: the initial and refined videos side by side (relative paths inside
+    ``run_dir``; a missing file is said, not hidden), the loss curve and one curve per
+    optimised parameter (inline SVG from ``history``, default ``params["history"]``;
+    records as in ``log.jsonl``: ``iteration``, ``loss``, ``params`` in SI), each
+    parameter over its allowed ``ranges`` band when given, and a section
+    ``id='viewer'`` on how to open the run in ``motionphysics view`` (linked from the
+    top of the fragment). Returns ``""`` when there is no history (not optimised).
+    """
+    run_dir = Path(run_dir)
+    e = html.escape
+    records = list(history if history is not None else params.get("history") or [])
+    if not records:
+        return ""
+    out = [f"<style>{_SECTION_CSS}</style>", "<h2 id='optimisation'>Optimisation</h2>"]
+    opt = params.get("optimise") or {}
+    stop = opt.get("stop_reason")
+    out.append(
+        f"<p>{len(records)} iterations"
+        + (f"; stopped: {e(str(stop))}" if stop else "")
+        + ". <a href='#viewer'>Open this run in the viewer</a> to see it from any side.</p>"
+    )
+    out.append("<div class='pair'>")
+    for label, rel in (
+        ("initial parameters", initial_video),
+        ("refined parameters", refined_video),
+    ):
+        out.append(f"<figure><figcaption>{e(label)}</figcaption>")
+        if rel and (run_dir / rel).is_file():
+            out.append(f"<video src='{e(rel)}' controls loop autoplay muted playsinline></video>")
+        else:
+            out.append(
+                f"<p class='muted'>No video ({e(str(rel)) if rel else 'not rendered'} missing).</p>"
+            )
+        out.append("</figure>")
+    out.append("</div>")
+
+    its = [r.get("iteration", i) for i, r in enumerate(records)]
+    curves = [svg_curve(its, [r.get("loss") for r in records], "loss")]
+    names: list[str] = []
+    for r in records:
+        for k in r.get("params") or {}:
+            if k not in names:
+                names.append(k)
+    for k in names:
+        unit = UNITS.get(k, "")
+        title = f"{k} [{unit}]" if unit and unit != "–" else k
+        ys = [(r.get("params") or {}).get(k) for r in records]
+        curves.append(svg_curve(its, ys, title, band=(ranges or {}).get(k)))
+    curves = [c for c in curves if c]
+    if curves:
+        out.append("<h3>Loss and parameters per iteration</h3><div class='curves'>")
+        out.extend(curves)
+        out.append("</div>")
+
+    cmd = viewer_command or f"motionphysics view {run_dir}"
+    out.append("<h2 id='viewer'>Open in the viewer</h2>")
+    out.append(
+        "<p>The viewer shows the deformed splats of every frame from any camera, with the "
+        "ground and colliders, a timeline and this run's material, curves and metrics. "
+        "Run</p>"
+        f"<pre>{e(cmd)}</pre>"
+        "<p>and open the address it prints (http://127.0.0.1:8080 by default; "
+        "<code>--port N</code> picks another, <code>--frame K</code> the first frame shown, "
+        "several run directories can be given to switch between them). Ctrl-C stops it.</p>"
+    )
+    return "\n".join(out) + "\n"

@@ -28,6 +28,8 @@ __all__ = [
     "camera_from_config",
     "load_inria_cameras",
     "frame_bounds",
+    "trajectory_bounds",
+    "frame_trajectory",
 ]
 
 
@@ -214,6 +216,70 @@ def frame_bounds(
     if radius is None:
         radius = r_sphere / math.sin(min(half_v, half_h))
     return orbit_camera(azimuth, elevation, radius, centre.tolist(), fov, width, height)
+
+
+def trajectory_bounds(
+    points, lo_percentile: float = 0.5, hi_percentile: float = 99.5, max_points: int = 200_000
+) -> tuple[list[float], list[float]]:
+    """Box holding an object over a whole trajectory: the union of its per-frame boxes.
+
+    Args:
+        points: ``[T, M, 3]`` positions [m] per frame (particles or splat centres;
+            numpy, torch or a memory map), or ``[M, 3]`` for one frame.
+        lo_percentile, hi_percentile: each frame's box spans these percentiles per
+            axis, so a few stray points (ejected material, a bad splat) do not widen it.
+        max_points: frames with more points are subsampled with a fixed stride.
+
+    Returns:
+        ``(lo [3], hi [3])`` [m]: the smallest box holding every frame's box. The
+        automatic camera frames this box (with :func:`frame_bounds`) so that an object
+        which moves stays in the picture, not only where it started.
+    """
+    import numpy as np
+
+    arr = points.detach().cpu().numpy() if hasattr(points, "detach") else points
+    if getattr(arr, "ndim", None) == 2:
+        arr = arr[None]
+    if (
+        getattr(arr, "ndim", None) != 3
+        or arr.shape[2] != 3
+        or arr.shape[0] == 0
+        or arr.shape[1] == 0
+    ):
+        raise ValueError(
+            f"points must be [frames, points, 3] with points > 0, got {getattr(arr, 'shape', None)}"
+        )
+    stride = max(1, -(-int(arr.shape[1]) // int(max_points)))
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for t in range(arr.shape[0]):
+        frame = np.asarray(arr[t, ::stride], dtype=np.float64)
+        frame = frame[np.isfinite(frame).all(axis=1)]
+        if not len(frame):
+            continue
+        lo = np.minimum(lo, np.percentile(frame, lo_percentile, axis=0))
+        hi = np.maximum(hi, np.percentile(frame, hi_percentile, axis=0))
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise ValueError("points hold no finite position")
+    return lo.tolist(), hi.tolist()
+
+
+def frame_trajectory(
+    points,
+    azimuth: float = 30.0,
+    elevation: float = 20.0,
+    fov: float = 45.0,
+    width: int = 256,
+    height: int = 256,
+    margin: float = 1.1,
+) -> Camera:
+    """An orbit camera that sees the object in every frame of ``points [T, M, 3]``.
+
+    :func:`frame_bounds` of :func:`trajectory_bounds`: looks at the centre of the
+    box swept by the object and stands far enough for its bounding sphere.
+    """
+    lo, hi = trajectory_bounds(points)
+    return frame_bounds(lo, hi, azimuth, elevation, fov, width, height, margin)
 
 
 def load_inria_cameras(path: str | Path) -> list[Camera]:

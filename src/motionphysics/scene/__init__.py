@@ -37,8 +37,11 @@ __all__ = [
 BUILTIN_PREFIX = "builtin:"
 
 
-def load_scene(source: str) -> GaussianScene:
+def load_scene(source: str, shade: bool = True) -> GaussianScene:
     """Load a scene in the world frame as stored (no transform applied).
+
+    ``shade`` (run config ``scene.shade``): a mesh without colours or texture gets a
+    baked default-light shading (:mod:`motionphysics.scene.mesh`) instead of flat grey.
 
     ``source`` is ``builtin:NAME``, an INRIA 3DGS ``.ply``, a mesh ``.ply`` (has faces or
     no ``f_dc_*``), or a mesh ``.obj .stl .off .glb .gltf``. Problems a user can fix raise
@@ -64,4 +67,4 @@ def load_scene(source: str) -> GaussianScene:
         raise UserInputError(f"{source}: scene file not found")
     if ext == ".ply" and ply.ply_kind(path) == "gaussians":
         return ply.read_ply(path)
-    return mesh.load_mesh(path)
+    return mesh.load_mesh(path, shade=shade)

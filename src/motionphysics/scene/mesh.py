@@ -5,7 +5,19 @@ surface with probability proportional to triangle area (seeded, so deterministic
 each point becomes a flat Gaussian: two axes in the face plane with standard deviation
 ``0.6 * sqrt(area / count)`` (neighbouring splats overlap at about one sigma, so the
 surface renders closed), the normal axis ``thickness_ratio`` times thinner. Colours
-come from the mesh's texture, vertex colours or face colours, else mid grey.
+come from the mesh's texture, vertex colours or face colours.
+
+A mesh with none of those would render as one flat grey (a sphere reads as a disc),
+so by default (``shade=True``, run config ``scene.shade``) its splats get a shading
+baked into their colour: Lambert's law under one directional light plus ambient,
+``colour = SHADE_ALBEDO * (SHADE_AMBIENT + (1 - SHADE_AMBIENT) * max(0, n . l))``
+with ``l = SHADE_LIGHT`` (from +x +y +z, in the mesh file's own coordinates, so the
+top and front of both z-up and y-up files are lit; the baked shade then moves and
+rotates with the material, like paint). Normals ``n`` point outwards when the mesh
+is closed with consistent winding (its signed volume decides the sign); on open or
+inconsistently wound meshes the side facing away from the light cannot be told, so
+both sides are lit alike (``|n . l|``). With ``shade=False`` such meshes are mid
+grey (``GREY``). Meshes with colours or a texture are never shaded.
 
 Only the surface is represented here; interior particles of closed objects are added
 by :func:`motionphysics.scene.prepare.prepare` (voxel fill). Mesh units are kept as
@@ -30,6 +42,10 @@ __all__ = [
     "mesh_to_gaussians",
     "sample_triangles",
     "surface_splats",
+    "shade_colours",
+    "SHADE_LIGHT",
+    "SHADE_AMBIENT",
+    "SHADE_ALBEDO",
 ]
 
 MESH_EXTENSIONS = (".obj", ".stl", ".off", ".glb", ".gltf", ".ply")
@@ -38,6 +54,13 @@ DEFAULT_MESH_SPLATS = 20000
 SIGMA_FACTOR = 0.6
 """In-plane standard deviation of a surface splat, in units of the mean sample spacing."""
 GREY = (0.5, 0.5, 0.5)
+"""Colour of a mesh without colours or texture when ``shade`` is off."""
+SHADE_LIGHT = (0.5773502691896258, 0.5773502691896258, 0.5773502691896258)
+"""Unit direction towards the default light, mesh file coordinates (from +x +y +z)."""
+SHADE_AMBIENT = 0.3
+"""Share of the albedo seen on faces the light does not reach."""
+SHADE_ALBEDO = 0.8
+"""Grey level of a face lit head-on (the baked colour spans 0.24 .. 0.8)."""
 
 
 def _cell_keys(points: np.ndarray, h: float) -> np.ndarray:
@@ -125,8 +148,50 @@ def surface_splats(
     )
 
 
-def _colour_sampler(mesh) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """A function (face (M,), bary (M,3)) -> RGB (M,3) in [0,1] for this trimesh mesh."""
+def shade_colours(
+    normals: np.ndarray, two_sided: bool | np.ndarray = False, light=SHADE_LIGHT
+) -> np.ndarray:
+    """Baked grey shading of surface points with ``normals`` (M, 3) (need not be unit).
+
+    Returns RGB (M, 3) in [0, 1] by the law in the module docstring; ``two_sided``
+    (bool or (M,) bool) lights both sides of a point's plane (``|n . l|``).
+    """
+    n = np.asarray(normals, dtype=np.float64)
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    lv = np.asarray(light, dtype=np.float64)
+    lv = lv / np.linalg.norm(lv)
+    cos = n @ lv
+    cos = np.where(two_sided, np.abs(cos), np.maximum(cos, 0.0))
+    grey = SHADE_ALBEDO * (SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos)
+    return np.repeat(grey[:, None], 3, axis=1)
+
+
+def _outward_sign(mesh) -> float | None:
+    """+1 / -1 when the mesh is closed and consistently wound (outward / inward faces), else None.
+
+    Judged on a copy with coincident vertices merged (an STL stores a triangle soup);
+    merging keeps each face's winding, so the sign holds for the original faces.
+    """
+    import trimesh
+
+    try:
+        probe = trimesh.Trimesh(
+            vertices=np.asarray(mesh.vertices), faces=np.asarray(mesh.faces), process=True
+        )
+        if probe.is_watertight and probe.is_winding_consistent:
+            vol = float(probe.volume)
+            if vol != 0 and np.isfinite(vol):
+                return 1.0 if vol > 0 else -1.0
+    except Exception:  # trimesh's topology checks can fail on odd input: treat as open
+        return None
+    return None
+
+
+def _colour_sampler(mesh) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+    """A function (face (M,), bary (M,3)) -> RGB (M,3) in [0,1] for this trimesh mesh.
+
+    None when the mesh has no texture, vertex colours or face colours.
+    """
     visual = getattr(mesh, "visual", None)
     kind = getattr(visual, "kind", None)
     faces = np.asarray(mesh.faces)
@@ -165,7 +230,7 @@ def _colour_sampler(mesh) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     elif kind == "face":
         fc = np.asarray(visual.face_colors, dtype=np.float64)[:, :3] / 255.0  # [F, 3]
         return lambda face, bary: fc[face]
-    return lambda face, bary: np.tile(GREY, (len(face), 1))
+    return None
 
 
 def mesh_to_gaussians(
@@ -175,10 +240,13 @@ def mesh_to_gaussians(
     thickness_ratio: float = 0.1,
     opacity: float = 0.9,
     origin: str = "<mesh>",
+    shade: bool = True,
 ) -> GaussianScene:
     """Surface splats on one trimesh mesh or a list of them (area-weighted over all).
 
-    Returns about ``count`` Gaussians (float32; see :func:`sample_triangles`). Raises UserInputError naming ``origin`` when
+    Returns about ``count`` Gaussians (float32; see :func:`sample_triangles`). Meshes
+    without colours or texture get the baked shading of the module docstring when
+    ``shade`` (else :data:`GREY`). Raises UserInputError naming ``origin`` when
     there is no triangle with positive area or the vertices hold NaN/Inf.
     """
     import trimesh
@@ -214,15 +282,27 @@ def mesh_to_gaussians(
     colors = np.empty((len(face), 3))
     for i, m in enumerate(meshes):
         sel = owner[face] == i
-        if sel.any():
-            colors[sel] = _colour_sampler(m)(local_face[face[sel]], bary[sel])
+        if not sel.any():
+            continue
+        sampler = _colour_sampler(m)
+        if sampler is not None:
+            colors[sel] = sampler(local_face[face[sel]], bary[sel])
+        elif shade:
+            sign = _outward_sign(m)
+            colors[sel] = shade_colours(
+                normals[sel] * (1.0 if sign is None else sign), two_sided=sign is None
+            )
+        else:
+            colors[sel] = GREY
     sigma = SIGMA_FACTOR * np.sqrt(total / count)
     return surface_splats(points, normals, e1, colors, sigma, thickness_ratio, opacity).validate(
         origin
     )
 
 
-def load_mesh(path: str | Path, count: int = DEFAULT_MESH_SPLATS, seed: int = 0) -> GaussianScene:
+def load_mesh(
+    path: str | Path, count: int = DEFAULT_MESH_SPLATS, seed: int = 0, shade: bool = True
+) -> GaussianScene:
     """Read a mesh file with trimesh and return surface splats (see :func:`mesh_to_gaussians`)."""
     import trimesh
 
@@ -238,4 +318,4 @@ def load_mesh(path: str | Path, count: int = DEFAULT_MESH_SPLATS, seed: int = 0)
         meshes = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)]
     else:
         meshes = [loaded]
-    return mesh_to_gaussians(meshes, count=count, seed=seed, origin=str(path))
+    return mesh_to_gaussians(meshes, count=count, seed=seed, origin=str(path), shade=shade)
