@@ -66,8 +66,12 @@ def test_zip_advances_together_and_crosses_the_rest(tmp_path):
 
 
 def test_ids_are_stable_readable_and_order_independent(tmp_path):
-    a = job_id({"prompt": "A rubber bird bounces.", "scene.source": "builtin:bird", "optimize.seed": 1})
-    b = job_id({"optimize.seed": 1, "scene.source": "builtin:bird", "prompt": "A rubber bird bounces."})
+    a = job_id(
+        {"prompt": "A rubber bird bounces.", "scene.source": "builtin:bird", "optimize.seed": 1}
+    )
+    b = job_id(
+        {"optimize.seed": 1, "scene.source": "builtin:bird", "prompt": "A rubber bird bounces."}
+    )
     assert a == b
     assert a.startswith("1_a-rubber-bird-bounces_builtin-bird-")
     assert job_id({"optimize.seed": 2}) != job_id({"optimize.seed": 1})
@@ -96,7 +100,9 @@ def test_inline_base_and_paths_relative_to_the_sweep_file(tmp_path):
     assert [j.config.camera.width for j in sw.jobs] == [32, 48]
     assert sw.jobs[0].config.scene.source == str((tmp_path / "scenes" / "a.ply").resolve())
     # An axis over files: also relative to the sweep file.
-    p2 = _sweep(tmp_path, f"base: {TINY}\naxes:\n  scene.source: [scenes/a.ply, builtin:cube]\n", "s2.yaml")
+    p2 = _sweep(
+        tmp_path, f"base: {TINY}\naxes:\n  scene.source: [scenes/a.ply, builtin:cube]\n", "s2.yaml"
+    )
     sources = [j.config.scene.source for j in load_sweep(p2).jobs]
     assert sources == [str((tmp_path / "scenes" / "a.ply").resolve()), "builtin:cube"]
 
@@ -158,8 +164,14 @@ def test_bad_base_is_named(tmp_path, capsys):
     [
         ("base: nope.yaml\n", "base: run config 'nope.yaml' not found"),
         (f"base: {TINY}\naxis: {{optimize.seed: [0]}}\n", "axis: unknown key"),
-        (f"base: {TINY}\naxes: {{optimize.seed: 3}}\n", "axes.optimize.seed: expected a non-empty list"),
-        (f"base: {TINY}\naxes: {{optimize.seed: []}}\n", "axes.optimize.seed: expected a non-empty list"),
+        (
+            f"base: {TINY}\naxes: {{optimize.seed: 3}}\n",
+            "axes.optimize.seed: expected a non-empty list",
+        ),
+        (
+            f"base: {TINY}\naxes: {{optimize.seed: []}}\n",
+            "axes.optimize.seed: expected a non-empty list",
+        ),
         (f"base: {TINY}\naxes: {{optimize.seed: [1, 1]}}\n", "value 1 appears twice"),
         (f"base: {TINY}\naxes: {{sim.domain: [null]}}\n", "null is not supported"),
         (f"base: {TINY}\naxes: {{'sim..x': [1]}}\n", "not a dotted config key"),
@@ -169,7 +181,10 @@ def test_bad_base_is_named(tmp_path, capsys):
             "zip: [[optimize.seed, sim.frames]]\n",
             "zip[0]: zipped axes need the same number of values",
         ),
-        (f"base: {TINY}\naxes: {{optimize.seed: [0, 1]}}\nzip: [[optimize.seed, prompt]]\n", 'zip[0]: "prompt" is not an axis'),
+        (
+            f"base: {TINY}\naxes: {{optimize.seed: [0, 1]}}\nzip: [[optimize.seed, prompt]]\n",
+            'zip[0]: "prompt" is not an axis',
+        ),
         (f"base: {TINY}\nname: 'a b'\n", "name: expected a simple name"),
         ("- 1\n", "expected a YAML mapping"),
     ],
