@@ -15,7 +15,6 @@ import os
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import pytest
 from conftest import TINY, batch_cmd, batch_env, job_records, read_table, run_batch_cli, snapshot
