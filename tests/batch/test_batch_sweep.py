@@ -224,3 +224,18 @@ def test_dry_run_lists_jobs_and_dirs_and_writes_nothing(tmp_path, capsys):
         assert f"optimize.seed={json.dumps(j.values['optimize.seed'])}" in line
     assert not out.exists()
     assert [pl.action for pl in plan_jobs(sw)] == ["run"] * 4
+
+
+def test_example_sweep_validates():
+    example = Path(__file__).parents[2] / "examples" / "sweep_demo.yaml"
+    sw = load_sweep(example)
+    assert len(sw.jobs) == 6 and sw.out == Path("runs") / "sweep_demo"
+    assert {j.config.scene.source for j in sw.jobs} == {"builtin:bird"}
+    assert len({j.id for j in sw.jobs}) == 6
+
+
+def test_default_name_is_the_folder_safe_file_stem(tmp_path):
+    p = _sweep(tmp_path, f"base: {TINY}\n", "my sweep.yaml")
+    sw = load_sweep(p)
+    assert sw.name == "my-sweep" and sw.out == Path("runs") / "my-sweep"
+    assert len(sw.jobs) == 1  # no axes: the base alone

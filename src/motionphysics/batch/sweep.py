@@ -342,7 +342,8 @@ def load_sweep(path: str | Path, out: str | Path | None = None) -> Sweep:
         )
     here = path.resolve().parent
 
-    name = data.get("name", path.stem)
+    # Without a name: the file's stem, made folder-safe ("my sweep.yaml" -> my-sweep).
+    name = data.get("name", re.sub(r"[^A-Za-z0-9._-]+", "-", path.stem).strip("-.") or "sweep")
     if not isinstance(name, str) or not _NAME_RE.match(name):
         raise UserInputError(
             f"{path}: name: expected a simple name (letters, digits, . _ -), got {_show(name)}"

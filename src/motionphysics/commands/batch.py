@@ -3,8 +3,8 @@
 Every job is an ordinary run directory under ``OUT/jobs/<job-id>/``; ``OUT/results.csv``
 and ``OUT/results.html`` hold one row per job. Running the same sweep again skips
 complete jobs, resumes interrupted ones and re-runs jobs whose config changed. Exit
-status: 0 when every job is complete, 1 when some job failed (each is listed on
-stderr and in the table), 2 for a bad sweep file or option (before anything runs),
+status: 0 when every job is complete, 1 when some job failed or was stopped (each
+is listed on stderr and in the table), 2 for a bad sweep file or option (before anything runs),
 130 when interrupted.
 """
 
@@ -58,9 +58,11 @@ def _main(args) -> int:
     with Progress(quiet=quiet, verbose=verbose) as prog:
         report = run_batch(sweep, executor, threads=threads, retries=args.retries, progress=prog)
 
-    for o in report.failed:
+    for o in report.outcomes:
+        if o.status == "complete":
+            continue
         code = f"exit {o.exit_code}" if o.exit_code is not None else "no exit status"
-        print(f"motionphysics: batch: job {o.id} failed ({code}): {o.message}", file=sys.stderr)
+        print(f"motionphysics: batch: job {o.id} {o.status} ({code}): {o.message}", file=sys.stderr)
     if not quiet:
         ran = len(report.outcomes)
         print(
@@ -69,7 +71,7 @@ def _main(args) -> int:
             f"{len(report.failed)} failed"
         )
         print(f"results:   {sweep.out / 'results.csv'}  {sweep.out / 'results.html'}")
-    return 1 if report.failed else 0
+    return 0 if report.complete == report.total else 1
 
 
 def register(subparsers) -> None:
