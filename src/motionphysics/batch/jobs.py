@@ -232,6 +232,11 @@ class ProcessRegistry:
         self.stopping.set()
         with self._lock:
             procs = list(self._procs.values())
+        # A Ctrl-C on the terminal reached the jobs too (one process group): give them a
+        # moment to stop on their own, so a second SIGINT does not cut their cleanup short.
+        settle = time.monotonic() + 1.5
+        while any(p.poll() is None for p in procs) and time.monotonic() < settle:
+            time.sleep(0.05)
         for p in procs:
             if p.poll() is None:
                 try:
