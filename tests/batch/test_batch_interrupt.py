@@ -4,6 +4,7 @@ job process running on (the job dies with it), so the next batch owns the folder
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -18,7 +19,9 @@ pytestmark = pytest.mark.slow
 
 def _start(tmp_path: Path, *flags: str) -> tuple[subprocess.Popen, Path, Path]:
     sweep = tmp_path / "sweep.yaml"
-    sweep.write_text(f"base: {TINY}\naxes: {{optimize.seed: [0, 1]}}\n")
+    # 150 frames: long enough (seconds) that the jobs are still simulating or rendering
+    # when the test stops the batch, after they were seen in those stages.
+    sweep.write_text(f"base: {TINY}\naxes: {{optimize.seed: [0, 1], sim.frames: [150]}}\n")
     out = tmp_path / "out"
     proc = subprocess.Popen(
         batch_cmd(sweep, out, "--workers", "1", *flags),
@@ -32,12 +35,18 @@ def _start(tmp_path: Path, *flags: str) -> tuple[subprocess.Popen, Path, Path]:
 
 
 def _wait_for_run(out: Path, proc: subprocess.Popen, timeout: float = 300) -> str:
-    """Wait until the first job's run has written params.json (it is mid-run)."""
+    """Wait until the first job's run is simulating (it is mid-run)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for k, r in job_records(out).items():
-            if r.get("status") == "running" and (out / "jobs" / k / "params.json").is_file():
-                return k
+            params = out / "jobs" / k / "params.json"
+            if r.get("status") == "running" and params.is_file():
+                try:
+                    stage = json.loads(params.read_text()).get("stage")
+                except ValueError:
+                    continue
+                if stage == "simulate":
+                    return k
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.05)
     raise AssertionError("no job started")
