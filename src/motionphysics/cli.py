@@ -31,6 +31,7 @@ COMMANDS = [
     "compare",
     "init",
     "view",
+    "batch",
 ]
 
 

@@ -52,11 +52,37 @@ def check_device(device: str) -> Device:
     return device  # type: ignore[return-value]
 
 
+THREADS_ENV = "MOTIONPHYSICS_THREADS"
+"""Environment variable that caps the default thread count (``motionphysics batch`` sets it per job)."""
+
+
+def default_threads() -> int:
+    """Threads a command uses by default: ``$MOTIONPHYSICS_THREADS``, else
+    ``$OMP_NUM_THREADS``, else all cores (at most 8).
+
+    The environment wins so that N parallel jobs (``motionphysics batch``, a cluster
+    scheduler) can each be given their share of the machine instead of all of it.
+    """
+    for name in (THREADS_ENV, "OMP_NUM_THREADS"):
+        value = os.environ.get(name, "").strip()
+        if value:
+            try:
+                n = int(value)
+            except ValueError:
+                raise UserInputError(
+                    f"${name}: expected a positive integer thread count, got {value!r}"
+                ) from None
+            if n < 1:
+                raise UserInputError(f"${name}: expected a positive integer, got {value!r}")
+            return n
+    return min(os.cpu_count() or 1, 8)
+
+
 def set_threads(n: int | None = None) -> int:
-    """Set torch's intra-op threads deliberately (default: all cores, at most 8)."""
+    """Set torch's intra-op threads deliberately (default: :func:`default_threads`)."""
     import torch
 
     if n is None:
-        n = min(os.cpu_count() or 1, 8)
+        n = default_threads()
     torch.set_num_threads(max(1, int(n)))
     return torch.get_num_threads()
