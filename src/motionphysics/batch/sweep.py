@@ -15,7 +15,7 @@ A sweep file (YAML)::
 The jobs are the product of the axes, where every ``zip`` group counts as one axis
 whose values are taken in step. Each job's config is the base with its axis values
 applied as overrides, validated by the public loader
-(:func:`motionphysics.pipeline.load_run_config`), so a sweep accepts exactly what
+(:func:`motionphysics.runconfig.load_run_config`), so a sweep accepts exactly what
 ``motionphysics run`` accepts. Every job of a sweep is validated before anything runs;
 the first problem is one :class:`~motionphysics.errors.UserInputError` line naming the
 sweep file, the axis and the value.
@@ -270,7 +270,7 @@ def _resolve_axis_paths(key: str, value: Any, here: Path) -> Any:
     Uses the pipeline's own ``resolve_paths`` on the override as a nested mapping, so an
     axis over ``scene`` (a whole mapping) or ``scene.source`` is treated alike.
     """
-    from motionphysics.pipeline import resolve_paths
+    from motionphysics.runconfig import resolve_paths
 
     nested: dict[str, Any] = {}
     node = nested
@@ -295,7 +295,7 @@ class _Loader:
         self.described = described
 
     def load(self, overrides: Mapping[str, Any]):
-        from motionphysics.pipeline import load_run_config
+        from motionphysics.runconfig import load_run_config
 
         return load_run_config(self.base_file, dict(overrides))
 
@@ -367,7 +367,7 @@ def load_sweep(path: str | Path, out: str | Path | None = None) -> Sweep:
         if base is None or isinstance(base, dict):
             import yaml
 
-            from motionphysics.pipeline import resolve_paths
+            from motionphysics.runconfig import resolve_paths
 
             # An inline base is a config written in the sweep file: its file paths are
             # relative to the sweep file. The loader reads files, so hand it one.
