@@ -5,8 +5,8 @@ Each subcommand lives in ``motionphysics.commands.<name>`` and exposes
 the parsed namespace and returning an exit status). Command modules import heavy
 packages inside their functions so ``motionphysics --help`` stays fast.
 
-Exit status: 0 success, 2 bad input (one line on stderr), 1 internal error,
-130 interrupted.
+Exit status: 0 success, 2 bad input (one line on stderr), 1 an output that could not
+be written (one line) or an internal error, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import importlib
 import sys
 
 from motionphysics import __version__
-from motionphysics.errors import RunInterrupted, SimulationError, UserInputError
+from motionphysics.errors import OutputError, RunInterrupted, SimulationError, UserInputError
 
 # Order here is the order of `motionphysics --help`.
 COMMANDS = [
@@ -94,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     except SimulationError as err:
         print(f"motionphysics: simulation failed: {err}", file=sys.stderr)
         return 2
+    except OutputError as err:
+        print(f"motionphysics: error: {err}", file=sys.stderr)
+        return 1
     except (KeyboardInterrupt, RunInterrupted) as err:
         msg = str(err) or "interrupted"
         print(f"motionphysics: {msg}", file=sys.stderr)
