@@ -111,6 +111,22 @@ class MaterialConfig(_Strict):
             raise ValueError(f"{problem} (physically impossible)")
         return v
 
+    @model_validator(mode="after")
+    def _params_of_the_class(self):
+        # A parameter the given class does not have is a mistake (it would be ignored).
+        if self.class_ is None:
+            return self
+        from motionphysics.materials.catalog import MATERIALS
+
+        names = MATERIALS[self.class_].names
+        extra = [k for k in self.overrides() if k != "density" and k not in names]
+        if extra:
+            raise ValueError(
+                f"parameter(s) {', '.join(extra)} do not belong to class {self.class_} "
+                f"(expected {', '.join(names)})"
+            )
+        return self
+
     def overrides(self) -> dict[str, float]:
         """The physical parameters given in the config (class excluded)."""
         out = {}
