@@ -147,3 +147,11 @@ def test_yaml_file_errors_name_the_file(tmp_path):
     p.write_text("material: {E: -5.0}\n")
     with pytest.raises(UserInputError, match=r"bad\.yaml: material\.E: got -5\.0"):
         load_config(p)
+
+
+@pytest.mark.parametrize("key", ["\r", "fr\name", " sim", ""])
+def test_keys_with_control_characters_stay_on_one_line(key):
+    with pytest.raises(UserInputError) as err:
+        config_from_dict({key: 1}, "c.yaml")
+    msg = str(err.value)
+    assert msg.isprintable() and msg.startswith("c.yaml: ") and "unknown key" in msg

@@ -83,19 +83,26 @@ def _subparser(parser: argparse.ArgumentParser, name: str | None):
     return None
 
 
+def one_line(err: BaseException) -> str:
+    """The message of ``err`` on one line: a value quoted from a file may hold line breaks
+    or other control characters; they are shown escaped, never printed."""
+    text = str(err)
+    return "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parse_args(parser, argv)
     try:
         return int(args.func(args) or 0)
     except UserInputError as err:
-        print(f"motionphysics: error: {err}", file=sys.stderr)
+        print(f"motionphysics: error: {one_line(err)}", file=sys.stderr)
         return 2
     except SimulationError as err:
         print(f"motionphysics: simulation failed: {err}", file=sys.stderr)
         return 2
     except OutputError as err:
-        print(f"motionphysics: error: {err}", file=sys.stderr)
+        print(f"motionphysics: error: {one_line(err)}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, RunInterrupted) as err:
         msg = str(err) or "interrupted"

@@ -436,13 +436,13 @@ def _walk(loc: tuple[Any, ...]) -> tuple[str, type[BaseModel] | None, Any]:
                 continue
             model = tagged
         if model is not None and _field(model, str(item)) is not None:
-            parts.append(("." if parts else "") + str(item))
+            parts.append(("." if parts else "") + _key(item))
             parent = model
             tp = _field(model, str(item)).annotation
             continue
         if model is not None and isinstance(tp, type) and issubclass(tp, BaseModel):
             # An unknown key of a model (extra_forbidden).
-            parts.append(("." if parts else "") + str(item))
+            parts.append(("." if parts else "") + _key(item))
             parent = model
             tp = Any
             continue
@@ -452,9 +452,15 @@ def _walk(loc: tuple[Any, ...]) -> tuple[str, type[BaseModel] | None, Any]:
             and not any(ch in str(item) for ch in "[]")
             and str(item) not in ("int", "float", "str", "bool", "none", "list", "tuple")
         ):
-            parts.append(("." if parts else "") + str(item))
+            parts.append(("." if parts else "") + _key(item))
             tp = Any
     return "".join(parts) or "(top level)", parent, tp
+
+
+def _key(item: Any) -> str:
+    """A key as it can be shown on one line (control characters and blanks escaped)."""
+    text = str(item)
+    return text if text.isprintable() and text.strip() == text and text else repr(text)
 
 
 def _show(value: Any) -> str:
@@ -538,7 +544,8 @@ def format_validation_error(err: ValidationError, origin: str) -> str:
     more = len(groups) - 1
     tail = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
     if t == "extra_forbidden":
-        key = path.rsplit(".", 1)[-1].split("]")[-1]
+        raw = tuple(errs[0].get("loc", ()))[-1:] or ("",)
+        key = _key(raw[0])
         hint = ""
         if parent is not None:
             near = _closest(key, _keys(parent))
