@@ -70,7 +70,7 @@ def answers(draw):
     return text
 
 
-@settings(max_examples=examples(400), deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(200), deadline=None, suppress_health_check=list(HealthCheck))
 @given(answers())
 def test_answer_validates_or_one_line(text):
     from motionphysics.init.llm import _validated
@@ -90,7 +90,7 @@ def test_answer_validates_or_one_line(text):
         assert c.kind == "clamped" and not spec(params.cls, c.field).contains(c.original)
 
 
-@settings(max_examples=examples(30), deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(15), deadline=None, suppress_health_check=list(HealthCheck))
 @given(answers(), answers())
 def test_two_answers_through_a_server(first, second):
     import sys

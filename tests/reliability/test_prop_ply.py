@@ -110,13 +110,8 @@ def damaged(draw, base: bytes):
 
 def _examples():
     return settings(
-        max_examples=examples(250), deadline=None, suppress_health_check=list(HealthCheck)
+        max_examples=examples(120), deadline=None, suppress_health_check=list(HealthCheck)
     )
-
-
-@pytest.fixture(scope="module")
-def strategy(base_bytes):
-    return damaged(base_bytes)
 
 
 def test_damaged_ply_loads_or_one_line(base_bytes, tmp_path_factory):
@@ -149,7 +144,7 @@ def test_damaged_ply_through_render(base_bytes, tmp_path_factory, monkeypatch):
     monkeypatch.setattr(cli, "COMMANDS", ["render"])
     d = tmp_path_factory.mktemp("plycli")
 
-    @settings(max_examples=examples(30), deadline=None, suppress_health_check=list(HealthCheck))
+    @settings(max_examples=examples(15), deadline=None, suppress_health_check=list(HealthCheck))
     @given(damaged(base_bytes))
     def prop(case):
         kind, data = case
