@@ -89,3 +89,69 @@ def test_missing_and_malformed_files(tmp_path):
     top.write_text("- 1\n- 2\n")
     with pytest.raises(UserInputError, match="mapping"):
         load_config(top)
+
+
+@pytest.mark.parametrize(
+    "data, parts",
+    [
+        ({"material": {"class": "rubberish"}}, ["material.class", "'rubberish'", "'elastic'"]),
+        (
+            {"boundary_conditions": [{"type": "surface_collider", "mode": "glue"}]},
+            ["boundary_conditions[0].mode", "'glue'", "'sticky'", "'frictional'"],
+        ),
+        ({"sim": {"grid": "lots"}}, ["sim.grid", "'lots'", "an integer"]),
+        ({"sim": {"substeps": "lots"}}, ["sim.substeps", "'lots'", "integer", "'auto'"]),
+        ({"sim": {"grid": 2}}, ["sim.grid", "got 2", ">= 8"]),
+        ({"sim": {"frame": 10}}, ["sim.frame", "unknown key", "did you mean `frames`?"]),
+        ({"camra": {}}, ["camra", "unknown key", "did you mean `camera`?"]),
+        ({"scene": {"crop": [1, 2]}}, ["scene.crop", "[1, 2]", "6 items"]),
+        ({"sim": {"gravity": [0, 0, "down"]}}, ["sim.gravity[2]", "'down'", "a number"]),
+        ({"boundary_conditions": [{"type": "glue"}]}, ["boundary_conditions[0].type", "'glue'"]),
+        ({"optimize": {"prior": "cogvideo"}}, ["optimize.prior", "did you mean `cogvideox`?"]),
+        ({"material": {"E": -5.0}}, ["material.E", "-5.0", "> 0 Pa", "physically impossible"]),
+        ({"material": {"nu": 0.75}}, ["material.nu", "0.75", "nu <= 0.5"]),
+        ({"material": {"density": 0}}, ["material.density", "got 0"]),
+        ({"material": {"mu": -1.0}}, ["material.mu", "viscosity > 0"]),
+        ({"material": {"E": float("nan")}}, ["material.E", "nan", "finite"]),
+        ({"sim": {"frame_dt": float("inf")}}, ["sim.frame_dt", "inf", "finite"]),
+    ],
+)
+def test_every_error_names_file_field_value_and_expectation(data, parts):
+    with pytest.raises(UserInputError) as err:
+        config_from_dict(data, "cfg.yaml")
+    msg = str(err.value)
+    assert msg.startswith("cfg.yaml: ") and "\n" not in msg, msg
+    for p in parts:
+        assert p in msg, (p, msg)
+    # Union / discriminator tags never appear as if they were keys.
+    for tag in ("literal[", "int.", "surface_collider.", "function-after"):
+        assert tag not in msg, msg
+
+
+def test_several_errors_are_counted_in_the_one_line():
+    with pytest.raises(UserInputError) as err:
+        config_from_dict({"sim": {"grid": "x", "frames": "y"}, "camra": 1}, "c.yaml")
+    msg = str(err.value)
+    assert "(and 2 more problems)" in msg and "\n" not in msg
+
+
+def test_parameter_of_another_class_names_the_file():
+    with pytest.raises(UserInputError) as err:
+        config_from_dict({"material": {"class": "elastic", "tau_Y": 100.0}}, "c.yaml")
+    msg = str(err.value)
+    assert msg.startswith("c.yaml: material: ") and "tau_Y" in msg and "E, nu" in msg
+
+
+def test_yaml_file_errors_name_the_file(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("material: {E: -5.0}\n")
+    with pytest.raises(UserInputError, match=r"bad\.yaml: material\.E: got -5\.0"):
+        load_config(p)
+
+
+@pytest.mark.parametrize("key", ["\r", "fr\name", " sim", ""])
+def test_keys_with_control_characters_stay_on_one_line(key):
+    with pytest.raises(UserInputError) as err:
+        config_from_dict({key: 1}, "c.yaml")
+    msg = str(err.value)
+    assert msg.isprintable() and msg.startswith("c.yaml: ") and "unknown key" in msg

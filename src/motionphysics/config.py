@@ -11,6 +11,7 @@ file, the field path and what was expected.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -37,7 +38,8 @@ MaterialClassName = Literal[
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN / Inf are never meaningful in a run config (``.nan`` in YAML is a slip).
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class SceneConfig(_Strict):
@@ -63,13 +65,12 @@ class SceneConfig(_Strict):
     """Bake a default-light shading into the colours of a mesh that has no colours or
     texture (scene.mesh); false: flat mid grey."""
 
-    @model_validator(mode="after")
-    def _crop_ordered(self):
-        if self.crop is not None:
-            c = self.crop
-            if not (c[0] < c[1] and c[2] < c[3] and c[4] < c[5]):
-                raise ValueError("crop must be [xmin, xmax, ymin, ymax, zmin, zmax] with min < max")
-        return self
+    @field_validator("crop")
+    @classmethod
+    def _crop_ordered(cls, c):
+        if c is not None and not (c[0] < c[1] and c[2] < c[3] and c[4] < c[5]):
+            raise ValueError("[xmin, xmax, ymin, ymax, zmin, zmax] with min < max")
+        return c
 
 
 class MaterialConfig(_Strict):
@@ -95,7 +96,39 @@ class MaterialConfig(_Strict):
     n: float | None = None
     """Herschel-Bulkley power-law index [-] (non-Newtonian; 1 = Bingham)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False
+    )
+
+    @field_validator("density", "E", "nu", "tau_Y", "eta", "theta_fric", "mu", "kappa", "n")
+    @classmethod
+    def _physical(cls, v, info):
+        # Physically impossible values (a negative modulus, nu > 0.5) are mistakes; the
+        # handbook ranges are not laws and are checked (with a warning) when resolving.
+        if v is None:
+            return v
+        from motionphysics.materials.catalog import physical_problem
+
+        problem = physical_problem(info.field_name, v)
+        if problem is not None:
+            raise ValueError(f"{problem} (physically impossible)")
+        return v
+
+    @model_validator(mode="after")
+    def _params_of_the_class(self):
+        # A parameter the given class does not have is a mistake (it would be ignored).
+        if self.class_ is None:
+            return self
+        from motionphysics.materials.catalog import MATERIALS
+
+        names = MATERIALS[self.class_].names
+        extra = [k for k in self.overrides() if k != "density" and k not in names]
+        if extra:
+            raise ValueError(
+                f"parameter(s) {', '.join(extra)} do not belong to class {self.class_} "
+                f"(expected {', '.join(names)})"
+            )
+        return self
 
     def overrides(self) -> dict[str, float]:
         """The physical parameters given in the config (class excluded)."""
@@ -127,18 +160,15 @@ class SimConfig(_Strict):
     @classmethod
     def _positive_substeps(cls, v):
         if isinstance(v, int) and v < 1:
-            raise ValueError("substeps must be >= 1 or 'auto'")
+            raise ValueError("an integer >= 1 or 'auto'")
         return v
 
-    @model_validator(mode="after")
-    def _domain_ordered(self):
-        if self.domain is not None:
-            lo, hi = self.domain
-            if not all(a < b for a, b in zip(lo, hi, strict=True)):
-                raise ValueError(
-                    "domain must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max"
-                )
-        return self
+    @field_validator("domain")
+    @classmethod
+    def _domain_ordered(cls, d):
+        if d is not None and not all(a < b for a, b in zip(d[0], d[1], strict=True)):
+            raise ValueError("[[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max")
+        return d
 
 
 class TimeWindow(_Strict):
@@ -394,39 +424,226 @@ class RunConfig(_Strict):
     """Informational: package versions that wrote this config (run.yaml); ignored on input."""
 
 
-def _format_loc(loc: tuple[Any, ...]) -> str:
+# --- error messages ---------------------------------------------------------------------
+# Every validation problem becomes ONE line: ``FILE: field.path: got VALUE; expected WHAT``
+# (unknown keys: ``FILE: field.path: unknown key; did you mean `frames`?``). The field path
+# is walked through the models so union/discriminator tags pydantic adds to ``loc`` (``int``,
+# ``literal['auto']``, ``surface_collider``) never appear as if they were keys.
+
+_MISSING = object()
+
+
+def _unwrap(tp: Any) -> Any:
+    """Strip ``Annotated`` and ``| None`` from an annotation."""
+    import typing
+
+    while typing.get_origin(tp) is Annotated:
+        tp = typing.get_args(tp)[0]
+    return tp
+
+
+def _members(tp: Any) -> list[Any]:
+    import types
+    import typing
+
+    tp = _unwrap(tp)
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return [_unwrap(a) for a in typing.get_args(tp) if a is not type(None)]
+    return [tp]
+
+
+def _model_of(tp: Any, tag: Any = None) -> type[BaseModel] | None:
+    """The pydantic model an annotation holds (the union member with ``type == tag``)."""
+    models = [m for m in _members(tp) if isinstance(m, type) and issubclass(m, BaseModel)]
+    if tag is not None:
+        for m in models:
+            f = m.model_fields.get("type")
+            if f is not None and tag in getattr(f.annotation, "__args__", ()):
+                return m
+    return models[0] if len(models) == 1 else None
+
+
+def _field(model: type[BaseModel], key: str):
+    for name, f in model.model_fields.items():
+        if key in (name, f.alias):
+            return f
+    return None
+
+
+def _keys(model: type[BaseModel]) -> list[str]:
+    return [f.alias or name for name, f in model.model_fields.items()]
+
+
+def _walk(loc: tuple[Any, ...]) -> tuple[str, type[BaseModel] | None, Any]:
+    """(user path, model holding the last key, annotation of the last key) of a ``loc``."""
+    import typing
+
     parts: list[str] = []
+    tp: Any = RunConfig
+    parent: type[BaseModel] | None = None
     for item in loc:
+        model = _model_of(tp)
         if isinstance(item, int):
             parts.append(f"[{item}]")
-        else:
-            # Discriminated-union tags appear as a path element; they are not user keys.
-            if (
-                item
-                in {
-                    "clamp_grid",
-                    "bounding_box",
-                    "surface_collider",
-                    "add_constant_force",
-                    "add_impulse",
-                    "force_particles_translation",
-                    "force_particles_rotation",
-                    "release_particles",
-                }
-                and parts
-            ):
+            inner = [a for m in _members(tp) for a in typing.get_args(m)]
+            tp = inner[0] if len(inner) == 1 or (inner and inner[-1] is not Ellipsis) else Any
+            if inner and len(inner) > 1 and inner[-1] is not Ellipsis and item < len(inner):
+                tp = inner[item]
+            continue
+        if model is None:
+            # Inside a union of models: a discriminator tag selects the member.
+            tagged = _model_of(tp, tag=item)
+            if tagged is not None and _field(tagged, str(item)) is None:
+                tp = tagged
                 continue
-            parts.append(("." if parts else "") + str(item))
-    return "".join(parts) or "(top level)"
+            model = tagged
+        if model is not None and _field(model, str(item)) is not None:
+            parts.append(("." if parts else "") + _key(item))
+            parent = model
+            tp = _field(model, str(item)).annotation
+            continue
+        if model is not None and isinstance(tp, type) and issubclass(tp, BaseModel):
+            # An unknown key of a model (extra_forbidden).
+            parts.append(("." if parts else "") + _key(item))
+            parent = model
+            tp = Any
+            continue
+        # A union member tag (``int``, ``literal['auto']``, ``tuple[...]``) or a dict key.
+        if typing.get_origin(_unwrap(tp)) is dict or (
+            model is None
+            and not any(ch in str(item) for ch in "[]")
+            and str(item) not in ("int", "float", "str", "bool", "none", "list", "tuple")
+        ):
+            parts.append(("." if parts else "") + _key(item))
+            tp = Any
+    return "".join(parts) or "(top level)", parent, tp
 
 
-def _first_error(err: ValidationError) -> str:
-    e = err.errors()[0]
-    loc = _format_loc(tuple(e.get("loc", ())))
-    msg = e.get("msg", "invalid value")
-    if e.get("type") == "extra_forbidden":
-        msg = "unknown key (check the spelling against the README's config reference)"
-    return f"{loc}: {msg}"
+def _key(item: Any) -> str:
+    """A key as it can be shown on one line (control characters and blanks escaped)."""
+    text = str(item)
+    return text if text.isprintable() and text.strip() == text and text else repr(text)
+
+
+def _show(value: Any) -> str:
+    text = repr(value) if not isinstance(value, str) else repr(value)
+    text = " ".join(text.split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _expected(e: dict[str, Any]) -> str:
+    t = e.get("type", "")
+    ctx = e.get("ctx") or {}
+    if t == "literal_error":
+        choices = str(ctx.get("expected", "?"))
+        return (
+            choices
+            if "," not in choices and " or " not in choices
+            else "one of " + choices.replace(" or ", ", ")
+        )
+    if t in ("int_parsing", "int_type", "int_from_float"):
+        return "an integer"
+    if t in ("float_parsing", "float_type"):
+        return "a number"
+    if t in ("bool_parsing", "bool_type"):
+        return "true or false"
+    if t in ("string_type",):
+        return "a text string"
+    if t in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
+        op = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<"}.get(t, "<=")
+        bound = next(iter(ctx.values()), "?")
+        return f"a number {op} {bound}"
+    if t in ("finite_number",):
+        return "a finite number"
+    if t in ("model_type", "model_attributes_type", "dict_type"):
+        return "a mapping of keys (key: value)"
+    if t in ("list_type", "tuple_type", "iterable_type"):
+        return "a list"
+    if t in ("too_short", "too_long"):
+        return f"{ctx.get('min_length', ctx.get('max_length', '?'))} items"
+    if t == "union_tag_invalid":
+        return f"type: one of {ctx.get('expected_tags', '?')}".replace(" or ", ", ")
+    if t == "union_tag_not_found":
+        return f"a {ctx.get('discriminator', 'type')} key naming the kind of entry"
+    msg = str(e.get("msg", "a valid value"))
+    return msg.removeprefix("Value error, ").removeprefix("Assertion failed, ")
+
+
+def _closest(word: str, choices: list[str]) -> str | None:
+    import difflib
+
+    hit = difflib.get_close_matches(word, choices, n=1, cutoff=0.6)
+    if not hit:  # case / separator slips: "Frames", "frame-dt"
+        norm = {c.lower().replace("-", "_"): c for c in choices}
+        hit = (
+            [norm[word.lower().replace("-", "_")]] if word.lower().replace("-", "_") in norm else []
+        )
+    return hit[0] if hit else None
+
+
+def format_validation_error(err: ValidationError, origin: str) -> str:
+    """One line for a pydantic error: file, field path, the value given, what was expected.
+
+    Errors of one field (the members of a union such as ``int | 'auto'``, the missing
+    items of a short tuple) are merged; when several fields are wrong the first is
+    named and the count of the others is appended.
+    """
+    groups: dict[str, list[dict[str, Any]]] = {}
+    meta: dict[str, tuple[type[BaseModel] | None, Any]] = {}
+    for e in err.errors():
+        loc = tuple(e.get("loc", ()))
+        # Items missing from a short tuple/list: report the list itself.
+        if e.get("type") == "missing" and loc and isinstance(loc[-1], int):
+            loc = loc[:-1]
+            e = {**e, "type": "too_short", "ctx": {"min_length": _tuple_len(loc)}}
+        path, parent, tp = _walk(loc)
+        groups.setdefault(path, []).append(e)
+        meta.setdefault(path, (parent, tp))
+    path, errs = next(iter(groups.items()))
+    parent, _ = meta[path]
+    e = errs[0]
+    t = e.get("type")
+    more = len(groups) - 1
+    tail = f" (and {more} more problem{'s' if more > 1 else ''})" if more else ""
+    if t == "extra_forbidden":
+        raw = tuple(errs[0].get("loc", ()))[-1:] or ("",)
+        key = _key(raw[0])
+        hint = ""
+        if parent is not None:
+            near = _closest(key, _keys(parent))
+            hint = (
+                f"; did you mean `{near}`?"
+                if near
+                else f"; expected one of {', '.join(_keys(parent))}"
+            )
+        return f"{origin}: {path}: unknown key `{key}`{hint}{tail}"
+    if t == "missing":
+        return f"{origin}: {path}: missing (required){tail}"
+    value = e.get("input", _MISSING)
+    expected = " or ".join(dict.fromkeys(_expected(x) for x in errs))
+    if t == "literal_error" and isinstance(value, str):
+        choices = re.findall(r"'([^']*)'", str((e.get("ctx") or {}).get("expected", "")))
+        near = _closest(value, choices)
+        if near:
+            expected += f" (did you mean `{near}`?)"
+    if t == "union_tag_invalid":
+        value = (e.get("ctx") or {}).get("tag", value)
+        path = f"{path}.type"
+    if t in ("value_error", "assertion_error") and isinstance(value, dict):
+        return f"{origin}: {path}: {expected}{tail}"
+    shown = "nothing" if value is _MISSING else _show(value)
+    return f"{origin}: {path}: got {shown}; expected {expected}{tail}"
+
+
+def _tuple_len(loc: tuple[Any, ...]) -> int | str:
+    import typing
+
+    _, _, tp = _walk(loc)
+    for m in _members(tp):
+        args = typing.get_args(m)
+        if typing.get_origin(m) is tuple and args and args[-1] is not Ellipsis:
+            return len(args)
+    return "?"
 
 
 def config_from_dict(data: dict[str, Any], origin: str = "<config>") -> RunConfig:
@@ -436,7 +653,7 @@ def config_from_dict(data: dict[str, Any], origin: str = "<config>") -> RunConfi
     try:
         return RunConfig.model_validate(data)
     except ValidationError as err:
-        raise UserInputError(f"{origin}: {_first_error(err)}") from None
+        raise UserInputError(format_validation_error(err, origin)) from None
 
 
 def load_config(path: str | Path) -> RunConfig:

@@ -1,8 +1,10 @@
 """Error types that decide the command line's exit status.
 
 ``UserInputError`` is bad input a user can fix (exit status 2, one line naming the
-file, the field and what was expected). Anything else escaping a command is an
-internal error (exit status 1). Never use ``assert`` for user input.
+file, the field and what was expected). ``OutputError`` is an output the machine
+could not write (disk full, I/O error): status 1, one line. Anything else escaping a
+command is an internal error (exit status 1, traceback). Never use ``assert`` for
+user input.
 """
 
 from __future__ import annotations
@@ -22,6 +24,11 @@ class SimulationError(RuntimeError):
     reports it as bad input (exit 2) since the fix is in the config (time step,
     stiffness, resolution).
     """
+
+
+class OutputError(Exception):
+    """An output could not be written for a reason outside the user's input (a full disk,
+    an I/O error, the video encoder dying): exit status 1 with ONE line, no traceback."""
 
 
 class RunInterrupted(Exception):

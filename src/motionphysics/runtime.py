@@ -8,6 +8,8 @@ compile of our kernels costs 12-16 s per module on CPU.
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 from functools import cache
 from pathlib import Path
 from typing import Literal
@@ -25,17 +27,68 @@ def cache_dir() -> Path:
     return path
 
 
+CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
+"""What Warp's native library writes to file descriptor 2 when it probes CUDA on a
+machine without the driver (every CPU machine)."""
+
+_WARP_STATE: dict[str, bool] = {"cuda_driver_missing": False}
+
+
 @cache
 def init_warp(quiet: bool = True):
-    """Initialise Warp once, with the kernel cache in :func:`cache_dir`. Returns ``warp``."""
+    """Initialise Warp once, with the kernel cache in :func:`cache_dir`. Returns ``warp``.
+
+    Warp probes CUDA at ``wp.init()`` and, without a driver, its C code prints a warning
+    straight to file descriptor 2 on every command of a CPU machine. The probe's output
+    is captured and that one line dropped (anything else Warp writes is passed on); a
+    missing driver is remembered and reported by :func:`check_device` only when CUDA
+    was asked for (``--device cuda``).
+    """
     import warp as wp
 
     wp.config.kernel_cache_dir = str(cache_dir() / "warp")
     # Warp 1.19 prints its banner and "Module ... load" lines to stdout at INFO level,
     # which would corrupt machine-readable output (`--json`): keep it at warnings.
     wp.config.log_level = wp.LOG_WARNING if quiet else wp.LOG_INFO
-    wp.init()
+    text = _capture_fd2(wp.init)
+    for line in text.splitlines():
+        if CUDA_DRIVER_WARNING in line:
+            _WARP_STATE["cuda_driver_missing"] = True
+        elif line.strip():
+            print(line, file=sys.stderr)
     return wp
+
+
+def _capture_fd2(fn) -> str:
+    """Run ``fn()`` with file descriptor 2 redirected to a temporary file; its text."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no usable fd 2 (embedded interpreters): run as is
+        fn()
+        return ""
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            fn()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        tmp.seek(0)
+        return tmp.read().decode("utf-8", errors="replace")
+
+
+def cuda_driver_present() -> bool:
+    """Whether the NVIDIA driver library loads (no CUDA initialisation, no output)."""
+    import ctypes
+
+    for name in ("libcuda.so", "libcuda.so.1", "nvcuda.dll"):
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
 
 
 def check_device(device: str) -> Device:
@@ -45,6 +98,11 @@ def check_device(device: str) -> Device:
     if device == "cuda":
         import torch
 
+        if _WARP_STATE["cuda_driver_missing"] or not cuda_driver_present():
+            raise UserInputError(
+                "--device cuda: the NVIDIA CUDA driver (libcuda) is not installed or cannot be "
+                "loaded on this machine, so GPU execution is not available; use --device cpu"
+            )
         if not torch.cuda.is_available():
             raise UserInputError(
                 "--device cuda: no CUDA device is visible to PyTorch on this machine; use --device cpu"

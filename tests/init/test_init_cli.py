@@ -28,7 +28,11 @@ def test_init_json_schema(capsys):
     assert set(mat) == {"class", "density", *MATERIALS["elastic"].names}
     for k in MATERIALS["elastic"].names:
         assert spec("elastic", k).contains(mat[k])
-    assert d["backend"] == "kb" and d["clamped"] == [] and d["raw_answer"] is None
+    assert d["backend"] == "kb" and d["raw_answer"] is None
+    # Rubber's real E (~3e6 Pa) lies below the elastic floor: reported, never hidden.
+    (c,) = d["clamped"]
+    assert c["field"] == "E" and c["kind"] == "range floor" and c["clamped"] == mat["E"]
+    assert c["original"] < c["clamped"] and d["matched"] == "rubber duck"
     assert 0 < d["confidence"] <= 1 and d["matches"][0]["name"] == "rubber duck"
 
 

@@ -84,7 +84,7 @@ def test_material_estimate_json_schema():
         7850.0,
         {"E": 2e11, "nu": 0.3, "tau_Y": 2.5e8},
         "llm",
-        clamped=[Clamp("E", 1e12, 4e11)],
+        clamped=[Clamp("E", 1e12, 4e11, "clamped", "llm")],
         raw_answer="{}",
         prompt="An axe.",
     )
@@ -97,5 +97,7 @@ def test_material_estimate_json_schema():
         "tau_Y": 2.5e8,
     }
     assert d["backend"] == "llm" and d["raw_answer"] == "{}"
-    assert d["clamped"] == [{"field": "E", "original": 1e12, "clamped": 4e11}]
+    assert d["clamped"] == [
+        {"field": "E", "original": 1e12, "clamped": 4e11, "kind": "clamped", "source": "llm"}
+    ]
     assert est.params.values["E"] == 2e11 and est.params.cls == "metal"

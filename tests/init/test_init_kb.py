@@ -200,3 +200,69 @@ def test_packaged_embeddings_are_the_models_embeddings(matcher):
     # float16 storage: ~1e-3 relative per component, cosine stays above 0.999
     cos = np.sum(fresh * shipped, axis=1) / np.linalg.norm(shipped, axis=1)
     assert np.all(cos > 0.999), cos
+
+
+@pytest.mark.parametrize(
+    "prompt, entry",
+    [
+        ("A bowling ball is dropped on the floor.", "bowling ball"),
+        ("A chocolate bar falls off the table.", "chocolate bar"),
+        ("A block of tofu is dropped onto a cutting board.", "tofu"),
+        ("A marshmallow is squashed.", "marshmallow"),
+        (
+            "A rubber duck sits on a table next to a window with curtains, sunlight coming "
+            "through the window glass, and it falls over.",
+            "rubber duck",
+        ),
+    ],
+)
+def test_everyday_objects_and_scenery(matcher, prompt, entry):
+    m = matcher.match(prompt)
+    assert m.entry.name == entry and m.confidence >= 0.5 and m.warnings == []
+
+
+@pytest.mark.parametrize("prompt, word", [("A ball falls.", "ball"), ("A cat falls.", "cat")])
+def test_low_confidence_says_not_sure(matcher, prompt, word):
+    from motionphysics.init.kb import CONFIDENCE_THRESHOLD
+
+    m = matcher.match(prompt)
+    assert m.confidence < CONFIDENCE_THRESHOLD and m.matched == word
+    (w,) = m.warnings
+    assert w.startswith(f"not sure: matched '{word}' -> {m.entry.name}")
+    assert "name the material, or use --init llm" in w
+
+
+@pytest.mark.parametrize(
+    "prompt", ["Una pelota de goma rebota en el suelo", "一个橡皮球掉在地上弹起来"]
+)
+def test_non_english_prompt_is_warned(matcher, prompt):
+    m = matcher.match(prompt)
+    assert any("reads English only" in w for w in m.warnings)
+    assert m.confidence < 0.5
+
+
+def test_english_prompts_are_not_flagged_non_english():
+    from motionphysics.init.kb import mostly_not_english
+
+    rows = list(csv.DictReader(PROMPTS.open(encoding="utf-8")))
+    assert not [r["prompt"] for r in rows if mostly_not_english(r["prompt"])]
+    assert mostly_not_english("Le ballon tombe sur la table et rebondit")
+
+
+def test_real_values_outside_the_class_are_reported(matcher):
+    (est,) = estimate_many(["A block of tofu is dropped."], backend="kb")
+    (c,) = est.clamped
+    assert c.kind == "range floor" and c.field == "E" and c.original < c.clamped
+    assert any("real E of tofu" in w for w in est.warnings)
+
+
+def test_extended_prompt_set_entries(matcher):
+    rows = [r for r in csv.DictReader(PROMPTS.open(encoding="utf-8")) if r.get("entry")]
+    assert len(rows) >= 10
+    got = matcher.match_many([r["prompt"] for r in rows])
+    wrong = [
+        (r["prompt"], m.entry.name)
+        for r, m in zip(rows, got, strict=True)
+        if m.entry.name != r["entry"]
+    ]
+    assert not wrong, wrong

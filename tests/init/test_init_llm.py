@@ -158,10 +158,19 @@ def test_out_of_range_values_are_clamped_and_recorded():
     with FakeChatServer([reply]) as srv:
         est = estimate("A rubber duck bounces.", backend="llm", options=_opts(srv))
     assert est.values == {"E": 4e11, "nu": 0.3} and est.density == 10.0
-    assert set(est.clamped) == {Clamp("E", 1e13, 4e11), Clamp("density", 1.0, 10.0)}
+    assert set(est.clamped) == {
+        Clamp("E", 1e13, 4e11, "clamped", "llm"),
+        Clamp("density", 1.0, 10.0, "clamped", "llm"),
+    }
     assert len(srv.requests) == 1  # clamping, not re-asking
     d = est.to_dict()
-    assert {"field": "E", "original": 1e13, "clamped": 4e11} in d["clamped"]
+    assert {
+        "field": "E",
+        "original": 1e13,
+        "clamped": 4e11,
+        "kind": "clamped",
+        "source": "llm",
+    } in d["clamped"]
 
 
 def test_wrong_class_is_reasked_then_accepted():
@@ -206,7 +215,7 @@ def test_missing_parameter_is_reasked():
 def test_timeout_is_a_clear_error_in_bounded_time():
     with FakeChatServer([(3.0, GOOD)]) as srv:
         t0 = time.monotonic()
-        with pytest.raises(LLMError, match="did not answer within"):
+        with pytest.raises(LLMError, match="timed out: no answer within --timeout 0.5 s"):
             estimate("An axe.", backend="llm", options=_opts(srv, timeout=0.5, retries=0))
         elapsed = time.monotonic() - t0
     # one 0.5 s attempt; 2.5 s is far below the 3 s the server sleeps
@@ -253,7 +262,7 @@ def test_naive_backend_asks_without_ranges_and_clamps():
         est = estimate("An axe.", backend="naive", options=_opts(srv))
     text = _user_text(srv.requests[0])
     assert "valid ranges" not in text and "4.5e10" not in text
-    assert est.backend == "naive" and est.clamped == [Clamp("E", 2e12, 4e11)]
+    assert est.backend == "naive" and est.clamped == [Clamp("E", 2e12, 4e11, "clamped", "naive")]
 
 
 def test_connection_refused_is_a_clear_error():
@@ -261,8 +270,78 @@ def test_connection_refused_is_a_clear_error():
     url = srv.base_url
     srv.server.server_close()  # nothing listens on that port any more
     opts = EstimateOptions(llm=LLMOptions(base_url=url, api_key=SECRET, timeout=2, max_retries=0))
-    with pytest.raises(LLMError, match="cannot connect"):
+    with pytest.raises(LLMError, match="refused the connection"):
         estimate("An axe.", backend="llm", options=opts)
+
+
+def test_server_that_closes_the_connection_is_named_as_such():
+    import socket
+
+    lsock = socket.socket()
+    lsock.bind(("127.0.0.1", 0))
+    lsock.listen(4)
+    stop = threading.Event()
+
+    def accept_and_close():
+        lsock.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                conn, _ = lsock.accept()
+            except OSError:
+                continue
+            conn.recv(65536)
+            conn.close()  # accepted, read the request, answered nothing
+
+    t = threading.Thread(target=accept_and_close, daemon=True)
+    t.start()
+    url = f"http://127.0.0.1:{lsock.getsockname()[1]}/v1"
+    opts = EstimateOptions(llm=LLMOptions(base_url=url, api_key=SECRET, timeout=2, max_retries=0))
+    try:
+        with pytest.raises(LLMError, match="accepted the connection and closed it") as err:
+            estimate("An axe.", backend="llm", options=opts)
+        assert "cannot connect" not in str(err.value) and "\n" not in str(err.value)
+    finally:
+        stop.set()
+        t.join(2)
+        lsock.close()
+
+
+def test_waiting_is_announced_with_server_and_timeout():
+    import io
+
+    from motionphysics.init.llm import ask_material
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    for stream, verbose in ((Tty(), False), (io.StringIO(), True)):
+        with FakeChatServer([GOOD]) as srv:
+            opts = _opts(srv, timeout=7).llm
+            ask_material("An axe.", None, opts, announce=True, stream=stream, verbose=verbose)
+        text = stream.getvalue()
+        assert "asking test-model at " + srv.base_url in text, text
+        assert "up to 7 s per request" in text
+        # On a terminal the line is erased once the answer is in.
+        assert text.endswith("\r\033[K") == (not verbose)
+    quiet = io.StringIO()  # a pipe without --verbose: nothing
+    with FakeChatServer([GOOD]) as srv:
+        ask_material("An axe.", None, _opts(srv).llm, announce=True, stream=quiet)
+    assert quiet.getvalue() == ""
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        '{"material_type": "metal", "density": 7800, "E": -2e11, "nu": 0.3, "tau_Y": 2e8}',
+        '{"material_type": "metal", "density": 7800, "E": 2e11, "nu": 0.8, "tau_Y": 2e8}',
+        '{"material_type": "metal", "density": 0, "E": 2e11, "nu": 0.3, "tau_Y": 2e8}',
+    ],
+)
+def test_physically_impossible_answers_are_reasked_then_refused(bad):
+    with FakeChatServer([bad, bad]) as srv, pytest.raises(LLMError, match="re-ask") as err:
+        estimate("An axe.", backend="llm", options=_opts(srv))
+    assert len(srv.requests) == 2 and "physically impossible" in str(err.value)
 
 
 def test_options_from_environment(monkeypatch):

@@ -5,7 +5,8 @@
 
 With ``--json`` one JSON object: ``material`` (``class``, ``density`` and the class's
 parameters, SI), ``backend``, ``confidence``, ``clamped``, ``raw_answer`` (llm),
-``matches`` (kb). Without it a short table. Bad input (empty or over-long prompt,
+``matches``, ``matched`` and ``warnings`` (kb). Without it a short table. Warnings
+(a low-confidence kb match, a non-English prompt) go to stderr, also with ``--quiet``. Bad input (empty or over-long prompt,
 non-UTF-8 ``--from`` file, unreadable image, unknown backend) exits with status 2.
 """
 
@@ -44,18 +45,68 @@ def register(subparsers) -> None:
         "model with ranges; median: range medians; naive: LLM without ranges",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--class", dest="cls", metavar="CLASS", help="force the class (median backend)")
+    p.add_argument(
+        "--class",
+        dest="cls",
+        metavar="CLASS",
+        help="force the class (only with --backend median; the other backends estimate it)",
+    )
     p.add_argument(
         "--median",
         choices=["arithmetic", "geometric"],
-        default="arithmetic",
-        help="median of log-scaled ranges (median backend; paper: arithmetic)",
+        default=None,
+        help="median of log-scaled ranges (only with --backend median; default arithmetic, "
+        "as in the paper)",
     )
-    p.add_argument("--base-url", help="Chat Completions base URL (env MOTIONPHYSICS_LLM_BASE_URL)")
-    p.add_argument("--model", help="model name (env MOTIONPHYSICS_LLM_MODEL; default gpt-4o)")
-    p.add_argument("--timeout", type=float, default=60.0, help="seconds per LLM request")
-    p.add_argument("--retries", type=int, default=2, help="LLM request retries with backoff")
+    p.add_argument(
+        "--base-url",
+        help="Chat Completions base URL (llm and naive backends; env MOTIONPHYSICS_LLM_BASE_URL)",
+    )
+    p.add_argument(
+        "--model",
+        help="model name (llm and naive backends; env MOTIONPHYSICS_LLM_MODEL; default gpt-4o)",
+    )
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=None,
+        help="seconds to wait for each LLM request (llm and naive backends; default 60)",
+    )
+    p.add_argument(
+        "--retries",
+        type=int,
+        default=None,
+        help="LLM request retries with backoff (llm and naive backends; default 2)",
+    )
     p.set_defaults(func=run)
+
+
+LLM_FLAGS = ("base_url", "model", "timeout", "retries")
+
+
+def check_flag_combination(args: argparse.Namespace) -> None:
+    """Refuse flags that would have no effect with the chosen backend (status 2, one line)."""
+    if args.cls is not None and args.backend != "median":
+        raise UserInputError(
+            f"--class: has no effect with --backend {args.backend} (it estimates the class); "
+            "use --backend median --class CLASS, or set material.class in a run config"
+        )
+    if args.median is not None and args.backend != "median":
+        raise UserInputError(
+            f"--median: has no effect with --backend {args.backend}; use it with --backend median"
+        )
+    if args.backend not in ("llm", "naive"):
+        given = [f for f in LLM_FLAGS if getattr(args, f) is not None]
+        if given:
+            flag = "--" + given[0].replace("_", "-")
+            raise UserInputError(
+                f"{flag}: has no effect with --backend {args.backend}; it applies to the llm "
+                "and naive backends"
+            )
+    if args.retries is not None and args.retries < 0:
+        raise UserInputError(f"--retries: got {args.retries}; expected a count >= 0")
+    if args.timeout is not None and not (args.timeout > 0 and args.timeout < float("inf")):
+        raise UserInputError(f"--timeout: got {args.timeout}; expected seconds > 0")
 
 
 def read_prompt_file(path: str) -> list[str]:
@@ -89,7 +140,8 @@ def _table(est) -> str:
     rows = [
         f"material  {mc.label} ({est.cls})",
         f"backend   {est.backend}"
-        + (f"   confidence {est.confidence:.2f}" if est.confidence is not None else ""),
+        + (f"   confidence {est.confidence:.2f}" if est.confidence is not None else "")
+        + (f"   matched '{est.matched}'" if est.matched else ""),
     ]
     rows.append(f"  {'density':<10} {est.density:>12.4g} {'kg/m^3':<6}")
     for name in mc.names:
@@ -99,7 +151,7 @@ def _table(est) -> str:
             f"   range {spec(est.cls, name).range_text()}"
         )
     for c in est.clamped:
-        rows.append(f"  clamped {c.field}: {c.original:.4g} -> {c.clamped:.4g}")
+        rows.append(f"  {c.kind} {c.field}: {c.original:.4g} -> {c.clamped:.4g}")
     if est.matches:
         top = ", ".join(f"{m['name']} ({m['class']})" for m in est.matches[:3])
         rows.append(f"matches   {top}")
@@ -114,18 +166,26 @@ def run(args: argparse.Namespace) -> int:
 
     if (args.prompt is None) == (args.from_file is None):
         raise UserInputError("init: give either a PROMPT or --from FILE (exactly one)")
-    if args.retries < 0:
-        raise UserInputError("--retries: expected a count >= 0")
+    check_flag_combination(args)
     prompts = read_prompt_file(args.from_file) if args.from_file else [check_prompt(args.prompt)]
     options = EstimateOptions(
         llm=LLMOptions(
-            base_url=args.base_url, model=args.model, timeout=args.timeout, max_retries=args.retries
+            base_url=args.base_url,
+            model=args.model,
+            timeout=60.0 if args.timeout is None else args.timeout,
+            max_retries=2 if args.retries is None else args.retries,
         ),
-        median=args.median,
+        median=args.median or "arithmetic",
         cls=args.cls,
-        announce=not args.quiet,
+        announce=not getattr(args, "quiet", False),
+        verbose=bool(getattr(args, "verbose", False)),
     )
     estimates = estimate_many(prompts, args.image, args.backend, options)
+    # Warnings about the material are never hidden, --quiet included.
+    for k, est in enumerate(estimates):
+        where = f"--from {args.from_file}: line {k + 1}: " if args.from_file else ""
+        for w in est.warnings:
+            print(f"motionphysics: {where}warning: {w}", file=sys.stderr)
     try:
         if args.from_file:
             for est in estimates:

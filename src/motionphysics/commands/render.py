@@ -1,8 +1,9 @@
-"""``motionphysics render SCENE --out FILE``: render a scene to an image or an orbit video.
+"""motionphysics render SCENE --out FILE: render a scene to an image or an orbit video.
 
-The camera is an orbit camera framed on the scene's bounding box unless ``--radius``
-is given (then it looks at the box centre from that distance). ``--orbit`` sweeps the
-azimuth through 360 degrees over ``--frames`` frames into an .mp4 or .gif.
+The camera is an orbit camera framed on the scene's bounding box unless --radius
+is given (then it looks at the box centre from that distance). --orbit sweeps the
+azimuth through 360 degrees over --frames frames into an .mp4 or .gif. The folder of
+--out must exist and be writable (checked before rendering).
 """
 
 from __future__ import annotations
@@ -105,7 +106,13 @@ def scene_bounds(scene):
 
 
 def run(args) -> int:
+    from pathlib import Path
+
+    from motionphysics.io.paths import check_output_file, writing
+
     _validate(args)
+    # Before any work: an unwritable or missing output folder is one line, status 2.
+    check_output_file(args.out, "--out")
     import torch
 
     from motionphysics.io.video import write_image, write_video
@@ -138,10 +145,15 @@ def run(args) -> int:
                 print(f"\rrendering frame {k + 1}/{len(azimuths)}", end="", file=sys.stderr)
     if show:
         print(file=sys.stderr)
-    if args.orbit:
-        write_video(torch.stack(frames), args.out, fps=args.fps)
-    else:
-        write_image(frames[0], args.out)
+    out = Path(args.out)
+    partial = out.with_name(
+        f".{out.stem}.partial{out.suffix.lower() if args.orbit else out.suffix}"
+    )
+    with writing(out, "--out", partial=partial):
+        if args.orbit:
+            write_video(torch.stack(frames), out, fps=args.fps)
+        else:
+            write_image(frames[0], out)
     if not getattr(args, "quiet", False):
         print(f"wrote {args.out}")
     return 0

@@ -1,7 +1,7 @@
-"""``motionphysics scenes``: list the bundled (builtin) scenes, one per line.
+"""motionphysics scenes: list the bundled (builtin) scenes, one per line.
 
-Each line is ``builtin:NAME`` then a one-line description; use the first column as
-``scene.source`` in a run config or as the SCENE of ``motionphysics render``.
+Each line is builtin:NAME then a one-line description; use the first column as
+scene.source in a run config or as the SCENE of motionphysics render.
 """
 
 from __future__ import annotations

@@ -51,7 +51,10 @@ class EstimateOptions:
     cls: str | None = None
     """Force the class (``median`` backend; the ablation compares values, not classes)."""
     announce: bool = True
-    """Say on stderr what is being loaded (the MiniLM model) on first use."""
+    """Say on stderr what is being loaded (the MiniLM model) on first use, and that an LLM
+    request is being waited for (on a terminal)."""
+    verbose: bool = False
+    """Also write the LLM waiting line when stderr is not a terminal."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,10 @@ class MaterialEstimate:
     prompt: str = ""
     source: str | None = None
     """kb: the source of the chosen entry's values."""
+    matched: str | None = None
+    """kb: the prompt words that matched the chosen entry (None: similarity only)."""
+    warnings: list[str] = field(default_factory=list)
+    """Lines the user must see (kb: "not sure: ...", non-English prompt)."""
 
     @property
     def params(self) -> MaterialParams:
@@ -94,6 +101,8 @@ class MaterialEstimate:
             "matches": self.matches,
             "source": self.source,
             "prompt": self.prompt,
+            "matched": self.matched,
+            "warnings": list(self.warnings),
         }
 
     def to_json(self, indent: int | None = None) -> str:
@@ -168,17 +177,35 @@ def _check_backend(backend: str) -> str:
 
 def _from_kb(match, prompt: str) -> MaterialEstimate:
     e = match.entry
+    # Handbook values outside the class range were set to the floor / ceiling when the
+    # kb was written: report them as substitutions, never as the material's own values.
+    clamped = []
+    for k, real in e.real.items():
+        used = e.density if k == "density" else e.values[k]
+        kind = "range floor" if real < used else "clamped"
+        clamped.append(Clamp(k, float(real), float(used), kind, "kb"))
+    warnings = list(getattr(match, "warnings", []))
+    for c in clamped:
+        if max(c.original, c.clamped) > 3.0 * min(c.original, c.clamped) > 0:
+            side = "below the floor" if c.kind == "range floor" else "outside the range"
+            warnings.append(
+                f"kb: the real {c.field} of {e.name} ({c.original:.3g}) is {side} of the "
+                f"{match.cls} class ({c.clamped:.3g} is used); write material.{c.field}: "
+                f"{c.original:.3g} in the config to simulate the real value"
+            )
     return MaterialEstimate(
         cls=match.cls,
         density=e.density,
         values=dict(e.values),
         backend="kb",
         confidence=round(match.confidence, 4),
-        clamped=[],
+        clamped=clamped,
         raw_answer=None,
         matches=match.matches,
         prompt=prompt,
         source=f"{e.name}: {e.source}",
+        matched=getattr(match, "matched", None),
+        warnings=warnings,
     )
 
 
@@ -235,7 +262,7 @@ def estimate_many(
         return out
     out = []
     for text in texts:
-        ans = ask_material(text, png, opts.llm, ranged=(backend == "llm"))
+        ans = ask_material(text, png, opts.llm, ranged=(backend == "llm"), announce=opts.announce)
         raw = (
             ans.raw_answers[0]
             if len(ans.raw_answers) == 1

@@ -36,7 +36,7 @@ import re
 import sys
 import threading
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -45,7 +45,7 @@ import numpy as np
 
 from motionphysics.config import MATERIAL_CLASSES
 from motionphysics.errors import UserInputError
-from motionphysics.materials.catalog import validate
+from motionphysics.materials.catalog import check_physical, spec, validate
 
 __all__ = [
     "KB_PATH",
@@ -56,6 +56,8 @@ __all__ = [
     "get_matcher",
     "load_kb",
     "tokenize",
+    "mostly_not_english",
+    "CONFIDENCE_THRESHOLD",
 ]
 
 KB_PATH = Path(__file__).with_name("kb_materials.json")
@@ -80,6 +82,19 @@ FIRST_BONUS = 0.3
 MADE_OF_FACTOR = 1.3
 CONTEXT_FACTOR = 0.35
 """Multiplier of a match that names a container ("a glass of") or a surface ("onto the table")."""
+CONFIDENCE_THRESHOLD = 0.5
+"""Below this confidence the kb warns "not sure" (a shape word such as 'ball' alone, a
+scenery word, or similarity only never reach it; a specific name or class word does
+unless two classes score alike)."""
+GENERIC_EVIDENCE = 0.4
+CONTEXT_EVIDENCE = 0.45
+SEMANTIC_EVIDENCE = 0.3
+GENERIC_WORDS = frozenset(
+    {"ball", "bouncing ball", "toy", "object", "thing", "shape", "figure", "block", "bar"}
+)
+"""Words that name a shape, not a material: a match on them alone is a guess."""
+GENERIC_ENTRIES = frozenset({"animal figure", "toy"})
+"""Entries that stand for what a thing depicts (a cat, a doll), not what it is made of."""
 SMALL_BATCH = 16
 """Batches up to this size are encoded single-threaded (see :func:`encode`)."""
 TEMPERATURE = 0.2
@@ -261,6 +276,36 @@ _WINDOW = 5
 """Tokens before a match searched for a context word / "made of"."""
 
 
+_ENGLISH_WORDS = frozenset(
+    "a an the of and or is are was be to in on at into onto from with by it its this that "
+    "falls fall drops dropped hits hit bounces ball made".split()
+)
+_FOREIGN_WORDS = frozenset(
+    # Spanish, French, German, Italian, Portuguese, Dutch function words (not English words).
+    "el la los las un una unos unas del al en es son y se por para con sobre cae rebota "
+    "le les une des du et est sur dans avec tombe "
+    "der die das ein eine und ist auf mit fällt im dem den "
+    "il lo gli uno della sul cade "
+    "o os um uma do da no na em cai "
+    "het een en op valt".split()
+)
+
+
+def mostly_not_english(prompt: str) -> bool:
+    """Whether a prompt is mostly not English: more than 30 % of its letters outside ASCII
+    (Chinese, Russian, Greek...), or more common words of another European language
+    (at least two) than English ones."""
+    letters = [ch for ch in prompt if ch.isalpha()]
+    if not letters:
+        return False
+    if sum(not ch.isascii() for ch in letters) > 0.3 * len(letters):
+        return True
+    words = re.findall(r"[^\W\d_]+", prompt.lower())
+    foreign = sum(w in _FOREIGN_WORDS and w not in _ENGLISH_WORDS for w in words)
+    english = sum(w in _ENGLISH_WORDS for w in words)
+    return foreign >= 2 and foreign > english
+
+
 def _stem(t: str) -> str:
     if len(t) > 4 and t.endswith("ies"):
         return t[:-3] + "y"
@@ -288,6 +333,8 @@ class KBEntry:
     density: float
     values: dict[str, float]
     source: str
+    real: dict[str, float] = field(default_factory=dict)
+    """Handbook values outside the class range (``values`` holds the floor/ceiling used)."""
 
     @property
     def texts(self) -> tuple[str, ...]:
@@ -323,6 +370,16 @@ def _load_kb_file(path: Path) -> KnowledgeBase:
         params, _ = validate(
             item["class"], item["values"], item["density"], on_out_of_range="error", origin=origin
         )
+        real = dict(item.get("real", {}))
+        for k, v in real.items():
+            ps = spec(params.cls, k)
+            x = check_physical(k, v, f"{origin}.real.{k}")
+            used = params.density if k == "density" else params.values.get(k)
+            if used is None or ps.contains(x) or abs(ps.clip(x) - used) > 1e-9 * abs(used):
+                raise UserInputError(
+                    f"{origin}.real.{k}: {x:g} must lie outside the class range and the value "
+                    f"used must be its floor/ceiling ({ps.range_text()})"
+                )
         entries.append(
             KBEntry(
                 item["name"],
@@ -332,6 +389,7 @@ def _load_kb_file(path: Path) -> KnowledgeBase:
                 params.density,
                 dict(params.values),
                 item["source"],
+                real,
             )
         )
     protos = {c: tuple(v) for c, v in data.get("class_prototypes", {}).items()}
@@ -419,12 +477,23 @@ class KBMatch:
     cls: str
     entry: KBEntry
     confidence: float
-    """Softmax probability of the chosen class over the class scores (temperature 0.2)."""
+    """``separation * evidence`` in [0, 1]: the softmax probability of the chosen class over
+    the class scores (temperature 0.2) times how much the prompt says about the material:
+    1 for an explicit class word or a specific name in the subject, CONTEXT_EVIDENCE for a
+    word in a scenery position, GENERIC_EVIDENCE for a shape word naming no material
+    ("ball", "toy", an animal), SEMANTIC_EVIDENCE when no word matched at all. Below
+    CONFIDENCE_THRESHOLD the match carries a "not sure" warning."""
     class_scores: dict[str, float]
     matches: list[dict[str, Any]]
     """Top entries: name, class, score, similarity, and the prompt words that matched."""
     explicit: list[str]
     """Explicit class words found in the prompt."""
+    matched: str | None = None
+    """The prompt words that matched the chosen entry (None: chosen by similarity only)."""
+    evidence: str = "specific"
+    """``explicit``, ``specific``, ``context``, ``generic`` or ``semantic`` (see confidence)."""
+    warnings: list[str] = field(default_factory=list)
+    """Lines to show the user: low confidence, a non-English prompt."""
 
 
 @dataclass
@@ -567,6 +636,7 @@ class KBMatcher:
         spans.sort(key=lambda sp: sp.start)
         # grammatical context of material-bearing spans (kb or explicit)
         strong = [sp for sp in spans if sp.kb or sp.explicit]
+        subject_end: int | None = None
         for j, sp in enumerate(strong):
             prev_end = strong[j - 1].end if j > 0 else 0
             before = toks[max(prev_end, sp.start - _WINDOW) : sp.start]
@@ -582,10 +652,19 @@ class KBMatcher:
                 and self._is_substance(strong[j + 1])
                 and (after[:1] == ["of"] or after in (["filled", "with"], ["full", "of"]))
             )
+            # Once the subject (the first match not in a context position) is known, every
+            # later match behind a preposition or impact verb anywhere after it is scenery
+            # ("a rubber duck sits on a table next to a window ... through the window glass").
+            if subject_end is None:
+                scenery = any(t in _CONTEXT_WORDS for t in before)
+            else:
+                scenery = any(t in _CONTEXT_WORDS for t in toks[subject_end : sp.start])
             if made_of:
                 sp.factor = MADE_OF_FACTOR
-            elif container or any(t in _CONTEXT_WORDS for t in before):
+            elif container or scenery:
                 sp.factor = CONTEXT_FACTOR
+            if subject_end is None and sp.factor >= 1.0:
+                subject_end = sp.end
         # A substance word right before another match modifies it ("steel ball bearing",
         # "wooden spoon"): the material named first is what the object is made of.
         for a, b in zip(strong, strong[1:], strict=False):
@@ -623,6 +702,7 @@ class KBMatcher:
         spans = self._spans(toks)
         lexical = np.zeros(n)
         matched_words: dict[int, str] = {}
+        matched_factor: dict[int, float] = {}
         explicit = dict.fromkeys(MATERIAL_CLASSES, 0.0)
         cues = dict.fromkeys(MATERIAL_CLASSES, 0.0)
         explicit_words: list[str] = []
@@ -639,6 +719,7 @@ class KBMatcher:
                 if score > lexical[i]:
                     lexical[i] = score
                     matched_words[i] = words
+                    matched_factor[i] = sp.factor
             for c in sp.explicit:
                 # In a context position ("hits the sand", "on a metal plate") a class word
                 # names the surroundings: it counts as an ordinary substance word there.
@@ -660,7 +741,40 @@ class KBMatcher:
         cls = max(class_scores, key=class_scores.get)
         scores = np.array([class_scores[c] for c in MATERIAL_CLASSES])
         p = np.exp((scores - scores.max()) / TEMPERATURE)
-        confidence = float(p[MATERIAL_CLASSES.index(cls)] / p.sum())
+        separation = float(p[MATERIAL_CLASSES.index(cls)] / p.sum())
+        j = best_entry[cls]
+        chosen = self.kb.entries[j]
+        words = matched_words.get(int(j))
+        if explicit[cls] >= EXPLICIT_WEIGHT:
+            evidence, why = 1.0, "explicit"
+        elif words is not None and lexical[j] > 0:
+            generic = chosen.name in GENERIC_ENTRIES or set(words.split()) <= GENERIC_WORDS
+            context = matched_factor.get(int(j), 1.0) < 1.0
+            evidence = GENERIC_EVIDENCE if generic else (CONTEXT_EVIDENCE if context else 1.0)
+            why = "generic" if generic else ("context" if context else "specific")
+        elif explicit[cls] > 0:
+            evidence, why = CONTEXT_EVIDENCE, "context"
+        else:
+            evidence, why = SEMANTIC_EVIDENCE, "semantic"
+        confidence = separation * evidence
+        warnings: list[str] = []
+        if confidence < CONFIDENCE_THRESHOLD:
+            if words is not None:
+                warnings.append(
+                    f"not sure: matched '{words}' -> {chosen.name} ({cls}, confidence "
+                    f"{confidence:.2f}); name the material, or use --init llm"
+                )
+            else:
+                warnings.append(
+                    f"not sure: no word of the prompt names a known material or object; "
+                    f"closest by meaning: {chosen.name} ({cls}, confidence {confidence:.2f}); "
+                    f"name the material, or use --init llm"
+                )
+        if mostly_not_english(prompt):
+            warnings.append(
+                "the prompt looks mostly non-English, and the offline kb reads English only; "
+                "write the prompt in English, or use --init llm"
+            )
         order = np.argsort(-entry_score)[:5]
         matches = [
             {
@@ -674,11 +788,14 @@ class KBMatcher:
         ]
         return KBMatch(
             cls,
-            self.kb.entries[best_entry[cls]],
+            chosen,
             confidence,
             {c: round(v, 4) for c, v in class_scores.items()},
             matches,
             explicit_words,
+            words,
+            why,
+            warnings,
         )
 
 

@@ -204,10 +204,14 @@ def parse_answer(text: str) -> tuple[str, dict[str, float], list[str]]:
     return cls, out, ignored
 
 
-def _validated(text: str) -> tuple[MaterialParams, list[Clamp], list[str]]:
+def _validated(text: str, source: str = "llm") -> tuple[MaterialParams, list[Clamp], list[str]]:
     cls, values, ignored = parse_answer(text)
     try:
-        params, clamps = validate(cls, values, on_out_of_range="clamp", origin="answer")
+        # Physically impossible values (a negative modulus, nu > 0.5) raise here too,
+        # so they are re-asked once and then refused; out-of-range ones are clamped.
+        params, clamps = validate(
+            cls, values, on_out_of_range="clamp", origin="answer", source=source
+        )
     except UserInputError as err:
         raise ValueError(str(err)) from None
     return params, clamps, ignored
@@ -226,6 +230,39 @@ def _content_text(response: Any) -> str:
     return content or ""
 
 
+def _causes(err: BaseException):
+    seen = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        yield err
+        err = err.__cause__ or err.__context__
+
+
+def connection_failure(err: BaseException) -> str:
+    """What went wrong under an ``openai.APIConnectionError``, in words.
+
+    ``refused the connection`` (nothing listens there), ``accepted the connection and
+    closed it without an answer`` (a proxy or a crashed server), ``cannot be resolved``
+    (DNS), else the underlying error's class name.
+    """
+    import socket
+
+    names = [type(e).__name__ for e in _causes(err)]
+    chain = list(_causes(err))
+    if any(isinstance(e, ConnectionRefusedError) for e in chain):
+        return "refused the connection (is the server running? check --base-url)"
+    if any(isinstance(e, socket.gaierror) for e in chain):
+        return "cannot be resolved (check the host name in --base-url)"
+    closed = ("RemoteProtocolError", "ReadError", "ConnectionResetError", "BrokenPipeError")
+    if any(isinstance(e, (ConnectionResetError, BrokenPipeError)) for e in chain) or any(
+        n in closed for n in names
+    ):
+        return "accepted the connection and closed it without an answer"
+    if any("ConnectError" == n for n in names):
+        return "could not be connected to (check --base-url)"
+    return f"failed ({' <- '.join(dict.fromkeys(names))})"
+
+
 def _chat(client: Any, opts: LLMOptions, messages: list[dict]) -> str:
     import openai
 
@@ -236,11 +273,13 @@ def _chat(client: Any, opts: LLMOptions, messages: list[dict]) -> str:
         )
     except openai.APITimeoutError:
         raise LLMError(
-            f"llm backend: {where} did not answer within --timeout {opts.timeout:g} s "
-            f"({opts.max_retries} retries)"
+            f"llm backend: {where} timed out: no answer within --timeout {opts.timeout:g} s "
+            f"per request ({1 + opts.max_retries} tries)"
         ) from None
-    except openai.APIConnectionError:
-        raise LLMError(f"llm backend: cannot connect to {where} (check --base-url)") from None
+    except openai.APIConnectionError as err:
+        raise LLMError(
+            f"llm backend: {where} {connection_failure(err)} ({1 + opts.max_retries} tries)"
+        ) from None
     except openai.AuthenticationError:
         raise LLMError(f"llm backend: {where} rejected the API key (HTTP 401)") from None
     except openai.APIStatusError as err:
@@ -267,25 +306,54 @@ def ask_material(
     image_png: bytes | None = None,
     options: LLMOptions | None = None,
     ranged: bool = True,
+    announce: bool = False,
+    stream=None,
+    verbose: bool = False,
 ) -> LLMAnswer:
     """Ask the LLM for the material of ``prompt`` (and reference image), validated.
 
-    ``ranged=False`` is the naive (PhysFlow) inquiry without ranges.
+    ``ranged=False`` is the naive (PhysFlow) inquiry without ranges. ``announce``: while
+    a request is out, show on ``stream`` (stderr) that the tool is waiting, for whom and
+    how long at most, so a slow server is never silent. On a terminal the line is
+    erased when the answer arrives (an error then stays the only line); elsewhere it is
+    written only with ``verbose`` (pipes and logs keep one line per failure).
     """
+    import sys
+
     opts = (options or LLMOptions()).resolved()
+    source = "llm" if ranged else "naive"
     client = make_client(opts)
     messages = build_messages(prompt, image_png, ranged=ranged)
+    where = opts.base_url or "the OpenAI API"
+    out = stream or sys.stderr
+
+    tty = bool(getattr(out, "isatty", lambda: False)())
+
+    def ask(what: str, msgs: list[dict]) -> str:
+        line = (
+            f"motionphysics: {what} {opts.model} at {where}, waiting up to "
+            f"{opts.timeout:g} s per request ({opts.max_retries} retries) ..."
+        )
+        shown = announce and (tty or verbose)
+        if shown:
+            print(line, file=out, end="" if tty and not verbose else "\n", flush=True)
+        try:
+            return _chat(client, opts, msgs)
+        finally:
+            if shown and tty and not verbose:
+                print("\r\033[K", file=out, end="", flush=True)
+
     raws: list[str] = []
-    text = _chat(client, opts, messages)
+    text = ask("asking", messages)
     raws.append(text)
     try:
-        params, clamps, ignored = _validated(text)
+        params, clamps, ignored = _validated(text, source)
     except ValueError as first:
         messages = [*messages, {"role": "assistant", "content": text}, repair_message(str(first))]
-        text = _chat(client, opts, messages)
+        text = ask(f"answer unusable ({first}); asking again", messages)
         raws.append(text)
         try:
-            params, clamps, ignored = _validated(text)
+            params, clamps, ignored = _validated(text, source)
         except ValueError as second:
             raise LLMError(
                 f"llm backend: no usable answer after one re-ask ({first}; then {second})"

@@ -47,6 +47,12 @@ __all__ = [
     "PARAM_NAMES",
     "MaterialParams",
     "Clamp",
+    "CLAMP_KINDS",
+    "PHYSICAL_LIMITS",
+    "RangeNote",
+    "check_physical",
+    "physical_problem",
+    "range_notes",
     "normalise_class",
     "class_id",
     "param_names",
@@ -375,48 +381,166 @@ def _as_float(v: Any) -> Any:
         return v
 
 
+CLAMP_KINDS = ("clamped", "range floor", "mapped to simulation")
+"""What a substitution is: ``clamped`` (an estimate moved into its handbook range),
+``range floor`` (an estimate whose real value lies below the class's range, set to the
+floor by the estimator itself, e.g. the kb's rubber), ``mapped to simulation`` (the
+simulation uses another value than the physical one; :mod:`~motionphysics.materials.simmap`)."""
+
+
 @dataclass(frozen=True)
 class Clamp:
-    """A value moved into its range: which field, the value given, the value kept."""
+    """A substituted value: which field, the value given, the value used, and what kind.
+
+    ``kind`` is one of :data:`CLAMP_KINDS`; ``source`` says whose value it was
+    (``kb``, ``llm``, ``median``, ``config``...), empty when unknown.
+    """
 
     field: str
     original: float
     clamped: float
+    kind: str = "clamped"
+    source: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return {"field": self.field, "original": self.original, "clamped": self.clamped}
+        out = {
+            "field": self.field,
+            "original": self.original,
+            "clamped": self.clamped,
+            "kind": self.kind,
+        }
+        if self.source:
+            out["source"] = self.source
+        return out
+
+    def text(self, unit: str = "") -> str:
+        """``E: 1e+06 -> 1e+07 Pa (clamped, kb)``: one line for summaries and warnings."""
+        u = f" {unit}" if unit and unit != "1" else ""
+        who = f", {self.source}" if self.source else ""
+        return f"{self.field}: {self.original:.4g} -> {self.clamped:.4g}{u} ({self.kind}{who})"
 
 
-def _number(value: Any, where: str) -> float:
+# --- physical validity ------------------------------------------------------------------
+# Not the handbook ranges (those bound estimates) but what no material can have: a value
+# outside these is a mistake wherever it comes from (config, params file, LLM answer).
+# (low, high, low_open, high_open, what is expected)
+PHYSICAL_LIMITS: dict[str, tuple[float, float, bool, bool, str]] = {
+    "density": (0.0, math.inf, True, True, "a mass density > 0 kg/m^3"),
+    "E": (0.0, math.inf, True, True, "a Young's modulus > 0 Pa"),
+    "nu": (-1.0, 0.5, True, False, "a Poisson's ratio with -1 < nu <= 0.5"),
+    "tau_Y": (0.0, math.inf, True, True, "a yield stress > 0 Pa"),
+    "eta": (0.0, math.inf, True, True, "a plastic viscosity > 0"),
+    "theta_fric": (0.0, 90.0, True, True, "a friction angle between 0 and 90 degrees"),
+    "mu": (0.0, math.inf, True, True, "a viscosity > 0 Pa s"),
+    "kappa": (0.0, math.inf, True, True, "a bulk modulus > 0 Pa"),
+    "n": (0.0, math.inf, True, True, "a power-law index > 0"),
+}
+"""``nu = 0.5`` is the incompressible limit (rubber), admitted and simulated as 0.49;
+``nu <= -1`` or ``> 0.5`` would make the bulk or shear modulus negative."""
+
+
+def physical_problem(name: str, value: Any) -> str | None:
+    """What is expected when ``value`` is impossible for parameter ``name``, else None."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise UserInputError(f"{where}: expected a number, got {value!r}")
+        return "a number"
     x = float(value)
     if not math.isfinite(x):
-        raise UserInputError(f"{where}: expected a finite number, got {value!r}")
-    return x
+        return "a finite number"
+    lim = PHYSICAL_LIMITS.get(name)
+    if lim is None:
+        return None
+    lo, hi, lo_open, hi_open, what = lim
+    if (x < lo or (lo_open and x == lo)) or (x > hi or (hi_open and x == hi)):
+        return what
+    return None
+
+
+def check_physical(name: str, value: Any, where: str) -> float:
+    """``float(value)`` or :class:`UserInputError` ``"{where}: got -5; expected ..."``."""
+    problem = physical_problem(name, value)
+    if problem is not None:
+        raise UserInputError(
+            f"{where}: got {value!r}; expected {problem} (physically impossible)"
+            if problem not in ("a number", "a finite number")
+            else f"{where}: got {value!r}; expected {problem}"
+        )
+    return float(value)
+
+
+@dataclass(frozen=True)
+class RangeNote:
+    """A value used as written although it lies outside its handbook range."""
+
+    field: str
+    value: float
+    low: float
+    high: float
+    unit: str
+    cls: str
+
+    def text(self, origin: str = "material") -> str:
+        side = "below" if self.value < self.low else "above"
+        u = "" if self.unit == "1" else f" {self.unit}"
+        return (
+            f"warning: {origin}.{self.field} = {self.value:.4g}{u} is {side} the handbook range "
+            f"of {self.cls} ({_fmt(self.low)} - {_fmt(self.high)}{u}); used as written"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "field": self.field,
+            "value": self.value,
+            "range": [self.low, self.high],
+            "unit": self.unit,
+        }
+
+
+def range_notes(params: MaterialParams, fields: Any = None) -> list[RangeNote]:
+    """The values of ``params`` (only ``fields`` when given) outside their handbook range."""
+    out = []
+    items = {"density": params.density, **params.values}
+    for name, value in items.items():
+        if fields is not None and name not in fields:
+            continue
+        ps = spec(params.cls, name)
+        v = float(value)
+        if not ps.contains(v):
+            out.append(RangeNote(name, v, ps.low, ps.high, ps.unit, params.cls))
+    return out
+
+
+def _number(value: Any, where: str, name: str = "") -> float:
+    return check_physical(name, value, where)
 
 
 def validate(
     cls: str,
     values: Mapping[str, Any],
     density: Any = None,
-    on_out_of_range: Literal["clamp", "error"] = "clamp",
+    on_out_of_range: Literal["clamp", "error", "keep"] = "clamp",
     origin: str = "material",
+    source: str = "",
 ) -> tuple[MaterialParams, list[Clamp]]:
     """Check a material against the catalogue.
 
     ``cls`` is normalised (aliases accepted). ``values`` holds the class's parameters
     (and may hold ``density`` when ``density`` is None). Unknown class, missing or
     extra parameters and non-numbers / non-finite values always raise
-    :class:`UserInputError` (one line, prefixed by ``origin``). Values outside their
-    range raise with ``on_out_of_range='error'``, or are clamped to the range with
-    ``'clamp'`` and recorded as :class:`Clamp` (field, original, clamped). A missing
-    parameter with a default (``n``) takes the default.
+    :class:`UserInputError` (one line, prefixed by ``origin``), and so do physically
+    impossible values (:data:`PHYSICAL_LIMITS`: a negative modulus, ``nu > 0.5``...)
+    in every mode. Values outside their handbook range raise with
+    ``on_out_of_range='error'``, are clamped to the range with ``'clamp'`` (what
+    estimates get) and recorded as :class:`Clamp` (kind ``clamped``, ``source``), or
+    are kept as given with ``'keep'`` (what a person wrote; list them with
+    :func:`range_notes` to warn). A missing parameter with a default (``n``) takes
+    the default.
 
     Returns ``(MaterialParams with python floats, clamps)``.
     """
-    if on_out_of_range not in ("clamp", "error"):
-        raise ValueError(f"on_out_of_range must be 'clamp' or 'error', got {on_out_of_range!r}")
+    if on_out_of_range not in ("clamp", "error", "keep"):
+        raise ValueError(
+            f"on_out_of_range must be 'clamp', 'error' or 'keep', got {on_out_of_range!r}"
+        )
     name = normalise_class(cls, field=f"{origin}.class")
     mc = MATERIALS[name]
     vals = dict(values)
@@ -439,15 +563,15 @@ def validate(
 
     def check(ps: ParamSpec, raw: Any) -> float:
         where = f"{origin}.{ps.name}"
-        x = _number(raw, where)
-        if ps.contains(x):
+        x = _number(raw, where, ps.name)
+        if ps.contains(x) or on_out_of_range == "keep":
             return x
         if on_out_of_range == "error":
             raise UserInputError(
                 f"{where}: {x:g} is outside the range of class {name} ({ps.range_text()})"
             )
         y = ps.clip(x)
-        clamps.append(Clamp(ps.name, x, y))
+        clamps.append(Clamp(ps.name, x, y, "clamped", source))
         return y
 
     rho = check(DENSITY, density)

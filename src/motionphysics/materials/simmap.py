@@ -122,6 +122,15 @@ __all__ = [
     "NU_SIM_MAX",
     "NN_YIELD_FACTOR",
     "SAND_NU",
+    "ClassViolation",
+    "class_violations",
+    "substeps_keeping_class",
+    "plan_substeps",
+    "SubstepPlan",
+    "MAX_AUTO_SUBSTEPS",
+    "SIM_QUANTITIES",
+    "sim_quantities",
+    "mapped_substitutions",
 ]
 
 NU_KNEE = 0.45
@@ -509,3 +518,339 @@ def impact_to_yield(sim_values: Mapping[str, Any], speed: float, density: Any = 
     rho = sim_values["density"] if density is None else density
     c = (sim_values["E"] * p_wave_modulus_factor(sim_values["nu"]) / rho) ** 0.5
     return rho * c * speed / sim_values["tau_Y"]
+
+
+# --- the material asked for, or a clear refusal ---------------------------------------
+#
+# The stiffness map above keeps every run stable, but at a coarse time step it can move a
+# material so far that it behaves as another class: steel at ``substeps: 5`` (E 4e11 Pa
+# simulated as 1.6e4 Pa) sags flat like dough. The rule, per class, on the simulated
+# values against the physical ones (``sigma_g = density * g * L``: the own-weight stress
+# at the bottom of the object; ``v = sqrt(2 g L)``: the speed after falling its own size):
+#
+# * elastic, plasticine, foam: own-weight strain ``sigma_g / E_sim`` at most SAG_LIMIT
+#   (10 %; beyond it a body visibly slumps like jelly or dough instead of keeping its
+#   shape); metal: at most METAL_SAG_LIMIT (2 %: what a viewer reads as rigid).
+# * plasticine, metal, foam: the yield stress must stay above the own-weight stress
+#   (``sigma_g / tau_Y_sim < 1``) or the body flows under its own weight like a paste.
+# * metal only: the impact-to-yield ratio at ``v`` (:func:`impact_to_yield`) must stay
+#   <= 1 when it is <= 1 in reality (dropped metal rebounds; dented, it reads as clay).
+# * every limit applies only where the MAP is responsible: a value a person chose soft
+#   (a jelly written as E = 1e4 Pa) is simulated as written, so the simulated figure must
+#   also exceed the physical one by RESPONSIBLE_FACTOR (sag) or cross 1 where the
+#   physical one does not (yield, impact).
+# * sand, Newtonian and non-Newtonian fluids: nothing the map compresses changes their
+#   class (sand's stiffness is derived, its friction angle passes through; fluids keep
+#   their yield stress and their viscosity is compressed only above the knee), so no
+#   refusal; the compression is reported as ``mapped to simulation``.
+
+SAG_LIMIT = 0.10
+METAL_SAG_LIMIT = 0.02
+RESPONSIBLE_FACTOR = 2.0
+MAX_AUTO_SUBSTEPS = 4096
+"""Cap of ``substeps: auto`` when it raises the count to keep the material's class."""
+AUTO_MAP_SUBSTEPS = 512
+"""``substeps: auto`` maps with ``dt = frame_dt / 512`` (CONTRACTS.md) unless the class
+rule needs more."""
+
+_LOOKS_LIKE = {
+    "elastic": "slumps like jelly",
+    "plasticine": "slumps like a liquid",
+    "metal": "flows like dough",
+    "foam": "slumps like jelly",
+}
+
+
+@dataclass(frozen=True)
+class ClassViolation:
+    """One way the simulated material leaves its class (see the rule above)."""
+
+    rule: str
+    """``sag``, ``own_weight_yield`` or ``impact``."""
+    parameter: str
+    physical: float
+    simulated: float
+    measure: float
+    """The simulated figure the rule bounds (strain, stress ratio)."""
+    limit: float
+    text: str
+
+
+def class_violations(
+    params: MaterialParams, sim_values: Mapping[str, Any], ctx: SimContext
+) -> list[ClassViolation]:
+    """How the simulated ``sim_values`` make ``params`` behave as another class (float inputs)."""
+    cls = params.cls
+    if cls not in _SOLIDS:
+        return []
+    rho = float(params.density)
+    sigma_g = rho * ctx.gravity * ctx.length
+    out: list[ClassViolation] = []
+    E, E_sim = float(params.values["E"]), float(sim_values["E"])
+    sag_phys, sag_sim = sigma_g / E, sigma_g / E_sim
+    limit = METAL_SAG_LIMIT if cls == "metal" else SAG_LIMIT
+    look = _LOOKS_LIKE[cls]
+    if sag_sim > limit and sag_sim > RESPONSIBLE_FACTOR * sag_phys:
+        out.append(
+            ClassViolation(
+                "sag",
+                "E",
+                E,
+                E_sim,
+                sag_sim,
+                limit,
+                f"is simulated with E = {E_sim:.2g} Pa (asked {E:.2g} Pa) and "
+                + (
+                    f"sags {100 * sag_sim:.0f} % under its own weight ({look})"
+                    if sag_sim <= 1
+                    else f"its own weight strains it by more than 100 % ({look})"
+                ),
+            )
+        )
+    if cls in _YIELD_SCALED:
+        tau, tau_sim = float(params.values["tau_Y"]), float(sim_values["tau_Y"])
+        if sigma_g / tau_sim >= 1.0 > sigma_g / tau:
+            out.append(
+                ClassViolation(
+                    "own_weight_yield",
+                    "tau_Y",
+                    tau,
+                    tau_sim,
+                    sigma_g / tau_sim,
+                    1.0,
+                    f"is simulated with tau_Y = {tau_sim:.2g} Pa (asked {tau:.2g} Pa), below "
+                    f"its own-weight stress {sigma_g:.2g} Pa, so it flows under its own weight",
+                )
+            )
+    if cls == "metal" and ctx.flow_speed > 0:
+        v = ctx.flow_speed
+        phys = {"E": E, "nu": float(params.values["nu"]), "tau_Y": float(params.values["tau_Y"])}
+        r_phys = float(impact_to_yield(phys, v, density=rho))
+        r_sim = float(impact_to_yield(sim_values, v, density=rho))
+        if r_sim > 1.0 >= r_phys:
+            out.append(
+                ClassViolation(
+                    "impact",
+                    "tau_Y",
+                    phys["tau_Y"],
+                    float(sim_values["tau_Y"]),
+                    r_sim,
+                    1.0,
+                    f"yields on an impact at {v:.2g} m/s (impact/yield {r_sim:.2g}, real "
+                    f"{r_phys:.2g}) and dents like clay",
+                )
+            )
+    return out
+
+
+@dataclass(frozen=True)
+class SubstepPlan:
+    """Substeps per frame for a run and the context its material was mapped with."""
+
+    substeps: int
+    """Substeps per frame the solver runs."""
+    ctx: SimContext
+    """Context of the sim map (``dt``: the mapping substep; may be finer than the run's)."""
+    sim: dict[str, float]
+    """Simulation values (:func:`physical_to_sim` under ``ctx``)."""
+    notes: list[str]
+    """Warning lines for the terminal (the auto cap binding); empty when all is well."""
+    violations: list[ClassViolation]
+    """What still makes the material leave its class (only when the auto cap binds)."""
+
+
+def _ctx(dx, frame_dt, n, density, length, gravity, yield_rule) -> SimContext:
+    return SimContext(
+        dx=dx,
+        dt=frame_dt / n,
+        density=density,
+        length=length,
+        gravity=gravity,
+        yield_rule=yield_rule,
+    )
+
+
+def substeps_keeping_class(
+    params: MaterialParams,
+    *,
+    dx: float,
+    frame_dt: float,
+    length: float,
+    gravity: float,
+    start: int = 1,
+    cap: int = MAX_AUTO_SUBSTEPS,
+    yield_rule: str = "auto",
+) -> int | None:
+    """Smallest mapping substep count in ``[start, cap]`` that keeps the class; None above cap.
+
+    Monotone in the count (a finer step raises every simulated stiffness and yield
+    stress), so doubling then bisection finds it in O(log cap) maps.
+    """
+    rho = float(params.density)
+
+    def ok(n: int) -> bool:
+        ctx = _ctx(dx, frame_dt, n, rho, length, gravity, yield_rule)
+        sim = {k: float(v) for k, v in physical_to_sim(params, ctx).items()}
+        return not class_violations(params, sim, ctx)
+
+    lo = max(1, int(start))
+    if ok(lo):
+        return lo
+    hi = lo
+    while not ok(hi):
+        if hi >= cap:
+            return None
+        lo, hi = hi, min(cap, hi * 2)
+    while hi - lo > 1:  # ok(hi), not ok(lo)
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+    return hi
+
+
+def plan_substeps(
+    params: MaterialParams,
+    substeps: int | str,
+    *,
+    dx: float,
+    frame_dt: float,
+    length: float,
+    gravity: float,
+    cfl_substeps=None,
+    yield_rule: str = "auto",
+    cap: int = MAX_AUTO_SUBSTEPS,
+    where: str = "sim.substeps",
+) -> SubstepPlan:
+    """Choose (``auto``) or check (a fixed count) the substeps of a run so the material
+    keeps its class (rule above).
+
+    ``auto``: map with ``dt = frame_dt / max(512, N_class)`` where ``N_class`` is the
+    smallest count that keeps the class (at most ``cap``; beyond it the cap is used and
+    a note says so), then run the CFL count of the mapped values (``cfl_substeps``:
+    ``(sim_values_with_class, dx, frame_dt) -> int``, default the solver's
+    ``auto_substeps``): the mapping step, not the run's count, fixes the simulated
+    values, and the CFL count of those values keeps the run stable.
+    A fixed count that makes the material leave its class raises
+    :class:`~motionphysics.errors.UserInputError`: ``"sim.substeps: with substeps 5 this
+    metal is simulated with E = 1.6e+04 Pa ... ; use `substeps: auto` (N) or at least M"``.
+    """
+    from motionphysics.errors import UserInputError
+
+    if cfl_substeps is None:
+        from motionphysics.sim.solver import auto_substeps as cfl_substeps
+    rho = float(params.density)
+    kw = dict(dx=dx, frame_dt=frame_dt, length=length, gravity=gravity, yield_rule=yield_rule)
+
+    def mapped(n: int):
+        ctx = _ctx(dx, frame_dt, n, rho, length, gravity, yield_rule)
+        return ctx, {k: float(v) for k, v in physical_to_sim(params, ctx).items()}
+
+    def auto_plan() -> SubstepPlan:
+        need = substeps_keeping_class(params, start=AUTO_MAP_SUBSTEPS, cap=cap, **kw)
+        notes: list[str] = []
+        n_map = need if need is not None else max(cap, AUTO_MAP_SUBSTEPS)
+        ctx, sim = mapped(n_map)
+        left = class_violations(params, sim, ctx) if need is None else []
+        if left:
+            notes.append(
+                f"warning: {where}: auto is capped at {cap} substeps per frame and at the cap "
+                f"this {params.cls} {left[0].text}; use a coarser sim.grid or a smaller sim.frame_dt"
+            )
+        run_n = int(cfl_substeps({"class": params.cls, **sim}, dx, frame_dt))
+        return SubstepPlan(max(1, run_n), ctx, sim, notes, left)
+
+    if substeps == "auto":
+        return auto_plan()
+    n = int(substeps)
+    ctx, sim = mapped(n)
+    bad = class_violations(params, sim, ctx)
+    if not bad:
+        return SubstepPlan(n, ctx, sim, [], [])
+    least = substeps_keeping_class(params, start=n, cap=cap, **kw)
+    auto = auto_plan()
+    need = f"at least {least}" if least is not None else f"more than {cap} (or a coarser sim.grid)"
+    raise UserInputError(
+        f"{where}: with substeps {n} this {params.cls} {bad[0].text}; use `substeps: auto` "
+        f"({auto.substeps}) or {need}"
+    )
+
+
+# --- simulation values under their own names ------------------------------------------
+
+SIM_QUANTITIES: dict[str, dict[str, tuple[str, str, str | None]]] = {
+    # class -> sim key -> (display name, unit, the catalogue parameter it is the
+    # simulated value of, or None when it is another quantity)
+    "elastic": {"E": ("E", "Pa", "E"), "nu": ("nu", "1", "nu")},
+    "plasticine": {
+        "E": ("E", "Pa", "E"),
+        "nu": ("nu", "1", "nu"),
+        "tau_Y": ("tau_Y", "Pa", "tau_Y"),
+    },
+    "metal": {"E": ("E", "Pa", "E"), "nu": ("nu", "1", "nu"), "tau_Y": ("tau_Y", "Pa", "tau_Y")},
+    "foam": {
+        "E": ("E", "Pa", "E"),
+        "nu": ("nu", "1", "nu"),
+        "tau_Y": ("tau_Y", "Pa", "tau_Y"),
+        "eta": ("eta", "1", "eta"),
+    },
+    "sand": {
+        "theta_fric": ("theta_fric", "deg", "theta_fric"),
+        "E": ("skeleton_E", "Pa", None),
+        "nu": ("skeleton_nu", "1", None),
+    },
+    "newtonian": {"mu": ("mu", "Pa s", "mu"), "kappa": ("kappa", "Pa", "kappa")},
+    "non_newtonian": {
+        "eta": ("solver_consistency", "Pa s^n", None),
+        "mu": ("unyielded_shear_modulus", "Pa", None),
+        "kappa": ("kappa", "Pa", "kappa"),
+        "tau_Y": ("uniaxial_yield_stress", "Pa", None),
+        "n": ("n", "1", "n"),
+    },
+}
+"""What each simulation value IS, per class. The non-Newtonian solver keys reuse the
+catalogue's names for other quantities (sim ``mu`` is the unyielded shear modulus [Pa],
+the catalogue's ``mu`` a viscosity [Pa s]; sim ``eta`` is the solver consistency
+``2^((n+1)/2) K``; sim ``tau_Y`` the uniaxial von Mises yield stress ``sqrt(3)`` times the
+catalogue's shear yield stress), so a reader must never see them paired by key."""
+
+
+def sim_quantities(cls: str, sim_values: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Simulation values as a reader should see them, in a stable order.
+
+    Each row: ``{"key": solver key, "name": display name, "unit", "value": float,
+    "pairs_with": catalogue parameter or None}``. Summary, report and ``params.json``
+    pair a row with a physical parameter only through ``pairs_with``; rows with None are
+    listed under their own ``name`` (``unyielded_shear_modulus 1.4e5 Pa``).
+    """
+    table = SIM_QUANTITIES[normalise_class(cls)]
+    rows = []
+    for key, (name, unit, pair) in table.items():
+        if key in sim_values:
+            rows.append(
+                {
+                    "key": key,
+                    "name": name,
+                    "unit": unit,
+                    "value": float(sim_values[key]),
+                    "pairs_with": pair,
+                }
+            )
+    return rows
+
+
+def mapped_substitutions(
+    params: MaterialParams, sim_values: Mapping[str, Any], rel_tol: float = 1e-6
+) -> list[Any]:
+    """:class:`~motionphysics.materials.catalog.Clamp` records (kind ``mapped to
+    simulation``) for each parameter whose simulated value differs from the physical one
+    (same quantity only: rows of :func:`sim_quantities` with ``pairs_with``)."""
+    from motionphysics.materials.catalog import Clamp
+
+    out = []
+    for row in sim_quantities(params.cls, sim_values):
+        name = row["pairs_with"]
+        if name is None or name not in params.values:
+            continue
+        phys = float(params.values[name])
+        if abs(row["value"] - phys) > rel_tol * max(abs(phys), 1e-30):
+            out.append(Clamp(name, phys, row["value"], "mapped to simulation", "sim map"))
+    return out
