@@ -257,6 +257,19 @@ PARTICLE_CASES = {
         [{"type": "surface_collider", "mode": "cut", "box": [[0.02, -0.3, -0.2], [0.3, 0.3, 0.3]]}],
         [],
     ),
+    # collider planes project the particles behind them onto the plane after G2P
+    "project_slip": (
+        [{"type": "surface_collider", "mode": "slip", "point": [0, 0, -0.04]}],
+        [],
+    ),
+    "project_frictional": (
+        [{"type": "surface_collider", "mode": "frictional", "point": [0, 0, -0.04]}],
+        [],
+    ),
+    "project_sticky": (
+        [{"type": "surface_collider", "mode": "sticky", "point": [0, 0, -0.04]}],
+        [],
+    ),
     "chain": (
         [{"type": "surface_collider", "mode": "cut", "point": [0, 0, -0.04]}],
         [
@@ -347,6 +360,9 @@ def test_particle_hook_gradients_match_finite_differences(case):
     if case in ("cut", "chain"):
         removed = s_out.active.numpy() == 0
         assert 0 < removed.sum() < N  # the case really exercises removal
+    if case.startswith("project"):
+        on_plane = np.abs(s_out.x.numpy()[:, 2] + 0.04) < 1e-6
+        assert 0 < on_plane.sum() < N  # the case really exercises the projection
     prog.zero_param_grads()
     tape.backward(loss=loss)
     grads = {

@@ -44,8 +44,8 @@ __all__ = [
 ]
 
 PAD_CELLS = 3
-"""Particles end at least this many cells inside the domain (quadratic B-spline stencil
-plus the bounding-box wall layer)."""
+"""Grid cells the solver adds outside the material box (``sim.domain``) on every side:
+the quadratic B-spline stencil (2) plus the wall layer of ``bounding_box``."""
 FILL_SEED = 0
 """Seed of the deterministic subsampling (interior cap, particle downsampling)."""
 _CLOSE_CELLS = 1
@@ -86,6 +86,11 @@ class SimScene:
     INRIA cameras, which live in the source frame)."""
     total_volume: float
     """Occupied volume of the voxelisation [m^3] (= volumes.sum() up to rounding)."""
+    wall_lo: torch.Tensor | None = None
+    """Low corner of the material box [m], shape (3,): ``sim.domain`` as given, or the
+    fitted box; its faces are walls (the grid extends PAD_CELLS cells beyond them)."""
+    wall_hi: torch.Tensor | None = None
+    """High corner of the material box [m], shape (3,)."""
 
     @property
     def n_particles(self) -> int:
@@ -218,20 +223,80 @@ def fit_domain(
     return lo, dx, dims, hi
 
 
+WALL_PHASE = 0.5
+"""Walls and axis-aligned collider planes sit this fraction of a cell past a grid node.
+Grid conditions act on the nodes on or behind a plane, and a body settles against them
+at a distance that depends on how the plane falls between nodes: with a plane ON a node
+a soft elastic cube came to rest with its lowest particle ~0.8 dx above it, with the plane
+half-way between nodes 0.0-0.35 dx above (what a resting body's half particle spacing
+explains); fluids and sand flow into the node layer and are projected back onto the plane
+after G2P (``boundary_kernels._project_plane``, the G2P wall clamp)."""
+
+GIVEN_DOMAIN_SLACK = 0.5
+"""A given ``sim.domain`` may leave the scene's particles up to this many cells outside it
+(round-off of a capture resting on the floor face); the first substep projects them in."""
+
+
 def _given_domain(points: np.ndarray, domain, grid: int):
+    """Grid around a given material box ``domain``: ``dx = longest side / grid`` (cells along
+    the longest side of the domain, as SimConfig.grid says), the solver's PAD_CELLS added
+    OUTSIDE it (see :func:`_aligned_grid`). Returns (dx, wall lo, wall hi)."""
     lo = np.asarray(domain[0], dtype=np.float64)
     hi = np.asarray(domain[1], dtype=np.float64)
-    dx, dims, hi_nodes = _grid_from_box(lo, hi, grid)
+    dx = float((hi - lo).max()) / grid
     pmin, pmax = points.min(axis=0), points.max(axis=0)
-    margin = PAD_CELLS * dx
-    if (pmin < lo + margin).any() or (pmax > hi_nodes - margin).any():
+    slack = GIVEN_DOMAIN_SLACK * dx
+    if (pmin < lo - slack).any() or (pmax > hi + slack).any():
         raise UserInputError(
             f"sim.domain: the scene's particles span {np.round(pmin, 4).tolist()} to "
-            f"{np.round(pmax, 4).tolist()} m but must lie at least {PAD_CELLS} cells "
-            f"({margin:.4g} m) inside the domain {np.round(lo, 4).tolist()} to {np.round(hi, 4).tolist()}; "
+            f"{np.round(pmax, 4).tolist()} m, outside the domain {np.round(lo, 4).tolist()} to "
+            f"{np.round(hi, 4).tolist()} (material may only occupy the domain); "
             "enlarge sim.domain or set it to null"
         )
-    return lo, dx, dims, hi_nodes
+    return dx, lo, hi
+
+
+def _wall_targets(walls_lo: np.ndarray, walls_hi: np.ndarray, boundary_conditions) -> np.ndarray:
+    """Per axis, the plane to put half-way between grid nodes: the first axis-aligned
+    (non-cut) ``surface_collider`` plane of that axis inside the material box, else the
+    box's low face."""
+    target = np.asarray(walls_lo, dtype=np.float64).copy()
+    found = [False, False, False]
+    for bc in boundary_conditions:
+        if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
+            continue
+        n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
+        p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
+        nn = float(np.linalg.norm(n))
+        if not nn > 0:
+            continue
+        a = int(np.argmax(np.abs(n)))
+        if abs(abs(n[a]) / nn - 1.0) > 1e-9 or found[a]:
+            continue
+        if walls_lo[a] - 1e-9 <= p[a] <= walls_hi[a] + 1e-9:
+            target[a] = p[a]
+            found[a] = True
+    return target
+
+
+def _aligned_grid(walls_lo, walls_hi, dx: float, targets, dims=None):
+    """Grid origin with every target plane half-way between two nodes (``WALL_PHASE``) and at
+    least PAD_CELLS cells beyond the walls. Returns (grid lo, dims, grid hi, walls hi):
+    ``dims`` given (the fitted domain keeps its node count), the high walls end PAD_CELLS
+    cells inside the last node instead."""
+    walls_lo = np.asarray(walls_lo, dtype=np.float64)
+    walls_hi = np.asarray(walls_hi, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64)
+    m = np.ceil((targets - walls_lo) / dx + PAD_CELLS - WALL_PHASE - 1e-9)
+    g_lo = targets - (m + WALL_PHASE) * dx
+    if dims is None:
+        dims = tuple(
+            int(math.ceil((h + PAD_CELLS * dx - g) / dx - 1e-9)) + 1
+            for g, h in zip(g_lo, walls_hi, strict=True)
+        )
+    g_hi = g_lo + (np.asarray(dims) - 1) * dx
+    walls_hi = np.minimum(walls_hi, g_hi - PAD_CELLS * dx)
+    return g_lo, tuple(int(d) for d in dims), g_hi, walls_hi
 
 
 # ---- 5. voxelisation and fill -------------------------------------------------------------
@@ -437,11 +502,16 @@ def prepare(
     big = float(splats.scales.max())
     fallback = max(4.0 * big, 1e-3) if math.isfinite(big) else 1e-3
     if sim_cfg.domain is not None:
-        lo, dx, dims, hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
+        dx, wall_lo, wall_hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
+        keep_dims = None
     else:
-        lo, dx, dims, hi = fit_domain(
+        lo, dx, keep_dims, hi = fit_domain(
             vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback
         )
+        # the material box: the fitted box without the solver's padding cells
+        wall_lo, wall_hi = lo + PAD_CELLS * dx, hi - PAD_CELLS * dx
+    targets = _wall_targets(wall_lo, wall_hi, boundary_conditions)
+    lo, dims, hi, wall_hi = _aligned_grid(wall_lo, wall_hi, dx, targets, keep_dims)
 
     # Voxel box: cells aligned with the domain's grid around the particles, with a free
     # margin so that the outside is connected around the object (it may poke out of the
@@ -506,4 +576,6 @@ def prepare(
         grid_dims=tuple(int(d) for d in dims),
         source_to_world=torch.from_numpy(m),
         total_volume=total_volume,
+        wall_lo=torch.from_numpy(np.asarray(wall_lo, dtype=np.float64)).float(),
+        wall_hi=torch.from_numpy(np.asarray(wall_hi, dtype=np.float64)).float(),
     )

@@ -439,18 +439,27 @@ class BoundaryProgram:
         particle_count, device, domain_lo, dx, grid_dims: the geometry it was built for.
     """
 
-    def __init__(self, *, particle_count: int, device: str, domain_lo, dx: float, grid_dims):
+    def __init__(
+        self, *, particle_count: int, device: str, domain_lo, dx: float, grid_dims, walls=None
+    ):
         self.particle_count = int(particle_count)
         self.device = device
         self.domain_lo = tuple(float(a) for a in domain_lo)
         self.dx = float(dx)
         self.grid_dims = tuple(int(n) for n in grid_dims)
+        self.walls = None if walls is None else tuple(tuple(float(a) for a in w) for w in walls)
+        """The material box ``(lo, hi)`` [m] whose faces are walls (Model.walls), or None
+        (legacy: particles kept in :func:`particle_bounds`, walls by ``padding`` only)."""
+        self._plane_ops: list[_GridOp] = []  # colliders whose particles are projected
         self.params: list[BoundaryParam] = []
         self.selected: dict[str, int] = {}
         self._grid_ops: list[_GridOp] = []
         self._particle_ops: list[_ParticleOp] = []
         self._cut_ops: list[_CutOp] = []
-        self._x_min, self._x_max = particle_bounds(self.domain_lo, self.dx, self.grid_dims)
+        if self.walls is None:
+            self._x_min, self._x_max = particle_bounds(self.domain_lo, self.dx, self.grid_dims)
+        else:
+            self._x_min, self._x_max = self.walls
 
     # -------------------------------------------------------------- construction
 
@@ -477,6 +486,7 @@ class BoundaryProgram:
             dx=model.dx,
             grid_dims=model.grid_dims,
             device=model.device,
+            walls=getattr(model, "walls", None),
         )
 
     @classmethod
@@ -490,11 +500,13 @@ class BoundaryProgram:
         dx: float,
         grid_dims,
         device: str = "cpu",
+        walls=None,
     ) -> BoundaryProgram:
         """Build from config entries and explicit geometry.
 
         ``x0``: initial particle positions [m], (P, 3); ``domain_lo`` [m] (3,) position of
-        node (0,0,0); ``dx`` [m]; ``grid_dims`` (nx, ny, nz) node counts.
+        node (0,0,0); ``dx`` [m]; ``grid_dims`` (nx, ny, nz) node counts; ``walls``: the
+        material box ``(lo, hi)`` [m] (Model.walls) or None.
         Bad entries raise :class:`UserInputError` naming ``boundary_conditions[i]`` / ``forces[i]``.
         """
         if hasattr(x0, "detach"):
@@ -508,6 +520,7 @@ class BoundaryProgram:
             domain_lo=domain_lo,
             dx=dx,
             grid_dims=grid_dims,
+            walls=walls,
         )
         for i, bc in enumerate(boundary_conditions):
             where = f"boundary_conditions[{i}]"
@@ -564,8 +577,9 @@ class BoundaryProgram:
                     f"{where}.padding: {bc.padding} cells leaves no interior in a grid of {self.grid_dims} nodes"
                 )
             param = self._new_param(f"{where}.friction", float(bc.friction), "-")
+            first, last = self._wall_nodes(int(bc.padding))
             self._grid_ops.append(
-                _GridOp(where, win, "bounding_box", {"padding": int(bc.padding)}, param)
+                _GridOp(where, win, "bounding_box", {"first": first, "last": last}, param)
             )
         elif isinstance(bc, SurfaceCollider):
             point = _finite(bc.point, f"{where}.point")
@@ -598,9 +612,30 @@ class BoundaryProgram:
             if bc.mode == "frictional":
                 friction = DEFAULT_COLLIDER_FRICTION if bc.friction is None else float(bc.friction)
                 param = self._new_param(f"{where}.friction", friction, "-")
-            self._grid_ops.append(_GridOp(where, win, bc.mode, geo, param))
+            op = _GridOp(where, win, bc.mode, geo, param)
+            self._grid_ops.append(op)
+            self._plane_ops.append(op)
         else:  # pragma: no cover - the config's discriminated union admits nothing else
             raise UserInputError(f"{where}.type: unknown boundary condition {type(bc).__name__}")
+
+    def _wall_nodes(self, padding: int):
+        """``(first, last)`` node indices per axis (wp.vec3i): ``bounding_box`` constrains the
+        nodes ``i <= first`` and ``i >= last``. These are the ``padding`` outermost nodes of the
+        grid and, with explicit :attr:`walls`, every node on or beyond a wall face (so the
+        wall acts at the domain face, where G2P's projection also holds the particles)."""
+        wp = init_warp()
+        first = [padding - 1] * 3
+        last = [n - padding for n in self.grid_dims]
+        if self.walls is not None:
+            tol = 1e-4
+            for a in range(3):
+                g_lo = (self.walls[0][a] - self.domain_lo[a]) / self.dx
+                g_hi = (self.walls[1][a] - self.domain_lo[a]) / self.dx
+                # nodes on or beyond the face, as a collider plane's (scene.prepare puts
+                # the faces half-way between nodes: see prepare.WALL_PHASE)
+                first[a] = max(first[a], int(math.floor(g_lo + tol)))
+                last[a] = min(last[a], int(math.ceil(g_hi - tol)))
+        return wp.vec3i(*first), wp.vec3i(*last)
 
     def _add_force(self, force, x0: np.ndarray, where: str) -> None:
         wp = init_warp()
@@ -762,7 +797,11 @@ class BoundaryProgram:
                 )
             elif op.kind == "bounding_box":
                 _launch(
-                    K._bounding_box, dims, [off_v, s["padding"], op.param.array], [grid_v], **kw
+                    K._bounding_box,
+                    dims,
+                    [off_v, s["first"], s["last"], op.param.array],
+                    [grid_v],
+                    **kw,
                 )
             elif op.kind == "cut":
                 _launch(
@@ -854,6 +893,20 @@ class BoundaryProgram:
                 )
         if self._cut_ops:
             self._apply_cuts(state_in, state_out, t, substep, dt)
+        # Last: particles behind a collider plane are projected onto it (the grid condition
+        # alone lets material settle about half a cell into the plane).
+        for op in self._plane_ops:
+            if not op.window.active(t, substep, dt):
+                continue
+            s = op.scalars
+            sticky = int(op.kind == "sticky")
+            _launch(
+                K._project_plane,
+                n,
+                [s["point"], s["normal"], sticky],
+                [state_out.x, state_out.v],
+                device=self.device,
+            )
 
     def _apply_cuts(self, state_in, state_out, t, substep, dt) -> None:
         from motionphysics.sim import boundary_kernels as K

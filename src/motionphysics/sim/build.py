@@ -98,7 +98,8 @@ def build_simulation(
 
     Args:
         sim_scene: ``scene.prepare.SimScene`` (particles [P,3] m, volumes [P] m^3,
-            domain_lo [3] m, dx m, grid_dims).
+            domain_lo [3] m, dx m, grid_dims; optional wall_lo / wall_hi [3] m, the
+            material box whose faces are walls).
         run_cfg: ``config.RunConfig`` (uses ``sim`` (frames, frame_dt, substeps, gravity,
             initial_velocity), ``boundary_conditions`` and ``forces``).
         material_sim: sim-unit values, ``'class'`` (name or per-particle ids) plus
@@ -108,6 +109,9 @@ def build_simulation(
             velocity (for :mod:`.bridge`).
     """
     sim_cfg = run_cfg.sim
+    walls = None
+    if getattr(sim_scene, "wall_lo", None) is not None:
+        walls = (_to_numpy(sim_scene.wall_lo), _to_numpy(sim_scene.wall_hi))
     model = Model.from_particles(
         sim_scene.volumes,
         material_sim,
@@ -118,6 +122,7 @@ def build_simulation(
         device=device,
         requires_grad=requires_grad,
         positions=sim_scene.particles,
+        walls=walls,
     )
     if run_cfg.boundary_conditions or run_cfg.forces:
         try:

@@ -148,8 +148,10 @@ class Solver:
         lo = np.asarray(model.domain_lo, dtype=np.float64)
         self._lo = wp.vec3(*lo)
         self._dims = wp.vec3i(*dims)
-        self._x_min = wp.vec3(*(lo + 2.0 * model.dx))
-        self._x_max = wp.vec3(*(lo + (np.asarray(dims) - 3.0) * model.dx))
+        # G2P projects particles onto the material box (the domain walls, Model.wall_box)
+        wall_lo, wall_hi = model.wall_box
+        self._x_min = wp.vec3(*wall_lo)
+        self._x_max = wp.vec3(*wall_hi)
         self._gravity = wp.vec3(*model.gravity)
         self._bounds = wp.zeros(2, dtype=wp.vec3, device=model.device)
         self._R_dummy = None  # R output of the elastic stress when nothing records it
