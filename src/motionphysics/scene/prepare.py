@@ -91,6 +91,10 @@ class SimScene:
     fitted box; its faces are walls (the grid extends PAD_CELLS cells beyond them)."""
     wall_hi: torch.Tensor | None = None
     """High corner of the material box [m], shape (3,)."""
+    object_id: torch.Tensor | None = None
+    """Object index of each particle, shape (P,), int64, or None (one object). ``prepare``
+    makes one object; a scene of several objects concatenates their particles and sets
+    this (``sim.build_simulation`` reads it: one grid velocity field per object)."""
 
     @property
     def n_particles(self) -> int:

@@ -93,6 +93,8 @@ def build_simulation(
     device: str = "cpu",
     requires_grad: bool = False,
     solver_config: SolverConfig | None = None,
+    object_id: Any = None,
+    contact_friction: float = 0.0,
 ) -> Simulation:
     """Everything needed to simulate ``sim_scene`` under ``run_cfg``.
 
@@ -107,6 +109,12 @@ def build_simulation(
         device: ``"cpu"`` or ``"cuda"``.
         requires_grad: allocate gradient buffers on the parameter arrays and initial
             velocity (for :mod:`.bridge`).
+        object_id: per-particle object index (P,) ints, or None: ``sim_scene.object_id``
+            when the scene has one, else one object. Each object gets its own grid
+            velocity field and contact between them (``kernels._make_contact_update``);
+            per-object materials are per-particle arrays in ``material_sim`` (see
+            :func:`~.model.per_object`).
+        contact_friction: Coulomb coefficient between objects (0: frictionless).
     """
     sim_cfg = run_cfg.sim
     walls = None
@@ -123,6 +131,8 @@ def build_simulation(
         requires_grad=requires_grad,
         positions=sim_scene.particles,
         walls=walls,
+        object_id=object_id if object_id is not None else getattr(sim_scene, "object_id", None),
+        contact_friction=contact_friction,
     )
     if run_cfg.boundary_conditions or run_cfg.forces:
         try:

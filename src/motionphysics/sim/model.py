@@ -9,6 +9,7 @@ own parameter values, so one scene can mix classes. What changes per substep liv
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -196,6 +197,24 @@ def _object_ids(value: Any, count: int) -> tuple[np.ndarray, int]:
     if n > MAX_OBJECTS:
         raise UserInputError(f"objects: at most {MAX_OBJECTS} objects, got {n}")
     return arr.astype(np.int32), n
+
+
+def per_object(object_id: Any, values: Sequence[Any]) -> Any:
+    """Per-particle array (P,) from one value per object: ``values[object_id[p]]``.
+
+    ``values``: floats / 0-dim tensors, one per object. With torch tensors the result is a
+    differentiable float32 tensor (gradients reach each object's value: what the fit needs
+    for one parameter vector per object); else a float32 ndarray.
+    """
+    if hasattr(object_id, "numpy") and not hasattr(object_id, "detach"):
+        object_id = object_id.numpy()
+    if any(hasattr(v, "detach") for v in values):
+        import torch
+
+        oid = torch.as_tensor(np.asarray(object_id), dtype=torch.long)
+        stacked = torch.stack([torch.as_tensor(v, dtype=torch.float32).reshape(()) for v in values])
+        return stacked[oid]
+    return np.asarray(values, dtype=np.float32)[np.asarray(object_id, dtype=np.int64)]
 
 
 MAX_OBJECTS = 8
