@@ -454,7 +454,7 @@ def _make_contact_update(num_objects: int):
         jm = wp.max(j - 1, 0)
         kp = wp.min(k + 1, rz - 1)
         km = wp.max(k - 1, 0)
-        M = float(0.0)
+        M = 0.0
         P = wp.vec3(0.0, 0.0, 0.0)
         gM = wp.vec3(0.0, 0.0, 0.0)
         for o in range(K):
