@@ -228,7 +228,15 @@ PARTICLE_CASES = {
     ),
     "add_impulse": (
         [],
-        [{"type": "add_impulse", "force": [3.0, 0.0, 1.0], "sphere": [[0.0, 0.0, 0.05], 0.1]}],
+        # (an impulse acts in the substep holding `start`: the one tested, t = 0.015)
+        [
+            {
+                "type": "add_impulse",
+                "force": [3.0, 0.0, 1.0],
+                "start": 0.01,
+                "sphere": [[0.0, 0.0, 0.05], 0.1],
+            }
+        ],
     ),
     "translation": (
         [],

@@ -12,7 +12,9 @@ substep (CONTRACTS.md, "sim"):
   grid update (optionally on the active sub-box of nodes only):
   ``clamp_grid``, ``bounding_box``, ``surface_collider`` (sticky / slip / frictional / cut);
 * ``apply_post_g2p(model, state_in, state_out, t, substep, dt)`` -- additive forces
-  (``add_constant_force``, ``add_impulse``: v += dt a, x += dt^2 a), imposed motion
+  (``add_constant_force``: an acceleration ``force`` [m/s^2], v += dt a, x += dt^2 a;
+  ``add_impulse``: a velocity change ``force`` [m/s] delivered within the substep that
+  holds ``start``, or evenly over ``[start, end)`` when ``end`` is given), imposed motion
   (``force_particles_translation`` / ``_rotation``: x = x_in moved by the imposed motion),
   frozen particles of ``release_particles`` (held at x_in) and removal by ``cut``.
 
@@ -643,7 +645,15 @@ class BoundaryProgram:
         sel = _selection(force, x0, where)
         self.selected[where] = int(sel.sum())
         mask = wp.array(sel.astype(np.float32), dtype=float, device=self.device)
-        if isinstance(force, AddConstantForce | AddImpulse):
+        if isinstance(force, AddImpulse):
+            # an impulse: the velocity change `force` [m/s], delivered evenly over the window
+            # [start, end) when `end` is given, else within the one substep holding `start`
+            param = self._new_param(f"{where}.force", _finite(force.force, f"{where}.force"), "m/s")
+            given_end = "end" in force.model_fields_set
+            self._particle_ops.append(
+                _ParticleOp(where, win, "impulse", mask, {"given_end": given_end}, param)
+            )
+        elif isinstance(force, AddConstantForce):
             param = self._new_param(
                 f"{where}.force", _finite(force.force, f"{where}.force"), "m/s^2"
             )
@@ -857,6 +867,17 @@ class BoundaryProgram:
                         device=self.device,
                     )
                 continue
+            if op.kind == "impulse":
+                frac = _impulse_fraction(op, t, substep, dt)
+                if frac > 0.0:
+                    _launch(
+                        K._add_velocity_change,
+                        n,
+                        [op.mask, op.param.array, float(frac), float(dt), *xb],
+                        [state_out.x, state_out.v],
+                        device=self.device,
+                    )
+                continue
             if not op.window.active(t, substep, dt):
                 continue
             if op.kind == "accel":
@@ -935,6 +956,23 @@ class BoundaryProgram:
             wp = init_warp()
             self._zero_friction_arr = wp.zeros(1, dtype=float, device=self.device)
         return self._zero_friction_arr
+
+
+def _impulse_fraction(op, t: float, substep: int, dt: float) -> float:
+    """Fraction of an ``add_impulse``'s velocity change delivered in this substep: 1 in the
+    substep holding ``start`` when no ``end`` was given, else ``dt / (end - start)`` (one
+    substep's share; ``1 / (end - start)`` with ``unit: substeps``) inside the window."""
+    w = op.window
+    if not op.scalars["given_end"]:
+        if w.unit == "substeps":
+            return 1.0 if substep == int(w.start) else 0.0
+        slack = _TIME_EPS * float(dt)  # a start on a substep edge belongs to the later one
+        return 1.0 if t - slack <= w.start < t + dt - slack else 0.0
+    if not w.active(t, substep, dt):
+        return 0.0
+    if w.unit == "substeps":
+        return 1.0 / (w.end - w.start)
+    return dt / (w.end - w.start)
 
 
 def _release_times(

@@ -273,6 +273,33 @@ def _add_acceleration(
 
 
 @wp.kernel
+def _add_velocity_change(
+    mask: wp.array(dtype=float),
+    dv: wp.array(dtype=wp.vec3),
+    frac: float,
+    dt: float,
+    x_min: wp.vec3,
+    x_max: wp.vec3,
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # After G2P: the share `frac` of an impulse's velocity change dv [m/s] this substep:
+    # v += frac dv, x += dt frac dv (as if it had been on the grid velocities).
+    p = wp.tid()
+    m = mask[p]
+    x = x_src[p]
+    v = v_src[p]
+    if m > 0.0:
+        d = (m * frac) * dv[0]
+        v = v + d
+        x = _clamp_vec(x + dt * d, x_min, x_max)
+    x_dst[p] = x
+    v_dst[p] = v
+
+
+@wp.kernel
 def _set_translation_velocity(
     mask: wp.array(dtype=float),
     velocity: wp.array(dtype=wp.vec3),
