@@ -228,12 +228,12 @@ PARTICLE_CASES = {
     ),
     "add_impulse": (
         [],
-        # (an impulse acts in the substep holding `start`: the one tested, t = 0.015)
+        # (an impulse acts in the substep holding `start`: the one tested, t = 0.015 .. 0.025)
         [
             {
                 "type": "add_impulse",
                 "force": [3.0, 0.0, 1.0],
-                "start": 0.01,
+                "start": 0.02,
                 "sphere": [[0.0, 0.0, 0.05], 0.1],
             }
         ],
