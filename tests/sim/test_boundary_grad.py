@@ -132,7 +132,8 @@ GRID_CASES = {
         {
             "type": "surface_collider",
             "mode": "cut",
-            "box": [[0.0, -0.3, -0.2], [0.3, 0.3, 0.3]],
+            # damping acts 1.5 cells or more inside the box (nodes x = 0.2, y, z inner)
+            "box": [[0.0, -0.3, -0.2], [0.5, 0.3, 0.3]],
             "damping": 0.3,
         }
     ],

@@ -31,6 +31,10 @@ MODE_STICKY = wp.constant(0)
 MODE_SLIP = wp.constant(1)
 MODE_FRICTIONAL = wp.constant(2)
 
+CUT_DAMP_DEPTH = wp.constant(1.5)
+"""A cut damps grid velocities only this many cells or more inside its region: the
+quadratic stencil of a particle outside the region reaches 1.5 cells into it."""
+
 CONTACT_TOL = wp.constant(1.0e-4)
 
 
@@ -188,7 +192,10 @@ def _cut_grid(
     v_src: wp.array3d(dtype=wp.vec3),
     v_dst: wp.array3d(dtype=wp.vec3),
 ):
-    # Cut region (the box, or the half-space behind the plane): velocity scaled by 1 - damping.
+    # Cut region (the box, or the half-space behind the plane), shrunk by CUT_DAMP_DEPTH
+    # cells: velocity scaled by 1 - damping. Material in the region is removed (and
+    # carries no mass); the nodes within a stencil's reach of the region's surface also
+    # carry the remaining material's mass, and damping them held it up.
     i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
     i = i + off[0]
     j = j + off[1]
@@ -196,10 +203,12 @@ def _cut_grid(
     v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
     xn = _node_pos(i, j, k, lo, dx)
     inside = False
+    depth = CUT_DAMP_DEPTH * dx
     if use_box != 0:
-        inside = _in_box(xn, box_lo, box_hi, CONTACT_TOL * dx)
+        shrink = wp.vec3(depth, depth, depth)
+        inside = _in_box(xn, box_lo + shrink, box_hi - shrink, CONTACT_TOL * dx)
     else:
-        inside = wp.dot(xn - point, normal) <= CONTACT_TOL * dx
+        inside = wp.dot(xn - point, normal) <= (CONTACT_TOL * dx - depth)
     if inside:
         v = (1.0 - damping[0]) * v
     v_dst[i, j, k] = v

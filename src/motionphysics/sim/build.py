@@ -42,6 +42,9 @@ class Simulation:
     frame_dt: float
     frames: int = 48
     _rollout: Rollout | None = field(default=None, repr=False)
+    last: RolloutResult | None = field(default=None, repr=False)
+    """The last :meth:`run`'s full result (``active`` [T, P] mask of particles a cut
+    removed, ``wall_hits`` [{frame, wall}] of the domain walls material reached)."""
 
     @property
     def dt(self) -> float:
@@ -68,6 +71,7 @@ class Simulation:
             keep_velocities=return_velocities,
             keep_checkpoints=False,
         )
+        self.last = res
         if return_velocities:
             return res.xs, res.Fs, res.vs
         return res.xs, res.Fs
