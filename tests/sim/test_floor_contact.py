@@ -86,3 +86,44 @@ def test_domain_floor_without_collider_is_a_wall(material):
     assert lowest.min() >= -0.1 and lowest[-1] <= 0.6, lowest
     # and never beyond the side walls either
     assert np.abs(xs[..., :2]).max() <= 1.0 + 0.1 * dx
+
+
+def test_fitted_domain_leaves_room_for_a_ball_thrown_sideways():
+    # 2 m/s sideways for 0.44 s (0.88 m): the fitted domain (domain: null) follows the
+    # motion the config implies, so the cube slides along the floor without meeting a
+    # wall (until issue 15 the walls stood 0.1-0.2 m from the object).
+    cfg = config_from_dict(
+        {
+            "scene": {"source": "test"},
+            "sim": {
+                "grid": 32,
+                "frames": 12,
+                "frame_dt": 0.04,
+                "substeps": "auto",
+                "initial_velocity": [2.0, 0.0, 0.0],
+            },
+            "boundary_conditions": [dict(FLOOR, mode="slip")],
+        }
+    )
+    scene = prepare(cube_splats(), cfg.scene, cfg.sim, list(cfg.boundary_conditions))
+    assert float(scene.wall_hi[0]) > float(scene.particles[:, 0].max()) + 0.88
+    sim = build_simulation(scene, cfg, MATERIALS["elastic"])
+    xs, _ = sim.run()
+    assert sim.last.wall_hits == []
+    assert xs[-1, :, 0].mean() - xs[0, :, 0].mean() > 0.7  # it really travelled
+
+
+def test_fitted_domain_grows_for_a_fluid_spreading():
+    from motionphysics.scene.prepare import motion_extent
+
+    cfg = config_from_dict({"sim": {"frames": 25, "frame_dt": 0.04}})
+    lo, hi = motion_extent(cfg.sim, material_class="newtonian", height=0.3)
+    np.testing.assert_allclose(hi[:2], 0.9) and np.testing.assert_allclose(lo[:2], -0.9)
+    lo_s, hi_s = motion_extent(cfg.sim, [], [FLOOR], material_class="elastic", height=0.3)
+    np.testing.assert_allclose(hi_s[:2], 0.0)
+    assert lo_s[2] == pytest.approx(-0.5 * 9.8 * 0.96**2, rel=0.02)  # the fall (to the floor)
+    assert motion_extent(cfg.sim)[0][2] == 0.0  # no floor: the domain's wall is the floor
+    # an impulse is a velocity change at its start
+    f = [{"type": "add_impulse", "force": [1.0, 0.0, 0.0], "start": 0.5}]
+    lo_i, hi_i = motion_extent(cfg.sim, forces=f)
+    assert hi_i[0] == pytest.approx(0.46, rel=0.02)
