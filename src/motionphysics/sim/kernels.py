@@ -361,9 +361,12 @@ def _p2g(
     grid_mv: wp.array4d(dtype=wp.vec4),
 ):
     # Scatter of mass and APIC momentum m v + affine (x_i - x_p) to the 27 stencil nodes,
-    # into the private grid of (chunk, object): slot chunk + obj_stride * object_id.
+    # into the private grid of (chunk, object): slot chunk + obj_stride * object_id
+    # (obj_stride = 0: one object, object_id not read).
     p = wp.tid() + p_offset
-    slot = chunk + obj_stride * object_id[p]
+    slot = chunk
+    if obj_stride != 0:
+        slot = chunk + obj_stride * object_id[p]
     inv_dx = 1.0 / dx
     m = density[p] * volume[p] * active[p]
     A = affine[p]
@@ -546,11 +549,13 @@ def _g2p(
     C_out: wp.array(dtype=wp.mat33),
 ):
     # grid_v stacks the objects' velocity fields along the first axis (object o at
-    # i + o * obj_stride); one object: obj_stride irrelevant (object_id = 0).
+    # i + o * obj_stride); one object: obj_stride = 0, object_id not read.
     p = wp.tid() + p_offset
     inv_dx = 1.0 / dx
     base, fx = _stencil(x[p], lo, inv_dx, dims)
-    b0 = base[0] + obj_stride * object_id[p]
+    b0 = base[0]
+    if obj_stride != 0:
+        b0 = base[0] + obj_stride * object_id[p]
     w = _weights(fx)
     v_new = wp.vec3(0.0, 0.0, 0.0)
     B = wp.mat33()
@@ -645,7 +650,9 @@ def _g2p_adjoint(
     Be0 = dx * wp.vec3(a_B[0, 0], a_B[1, 0], a_B[2, 0])
     Be1 = dx * wp.vec3(a_B[0, 1], a_B[1, 1], a_B[2, 1])
     Be2 = dx * wp.vec3(a_B[0, 2], a_B[1, 2], a_B[2, 2])
-    o_i = obj_stride * object_id[p]
+    o_i = int(0)  # noqa: UP018  (a Warp variable mutated below)
+    if obj_stride != 0:
+        o_i = obj_stride * object_id[p]
     b0 = base[0] + o_i
     r = base - adj_off
     r0 = r[0] + o_i
@@ -718,7 +725,9 @@ def _p2g_adjoint(
     # incrementally (it steps by dx A e_axis per node): ~16 flops per node instead of ~65,
     # measured 28 % faster than the direct 27-term loop.
     p = wp.tid() + p_offset
-    slot = chunk + obj_stride * object_id[p]
+    slot = chunk
+    if obj_stride != 0:
+        slot = chunk + obj_stride * object_id[p]
     inv_dx = 1.0 / dx
     vol = volume[p] * active[p]
     m = density[p] * vol

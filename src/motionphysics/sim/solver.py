@@ -392,7 +392,7 @@ class Solver:
                 chunk,
                 wp_off,
                 self._object_id,
-                self.chunks,
+                self.chunks if self.num_objects > 1 else 0,
             ]
 
         # chunks write disjoint particles and their own private grid: no shared adjoints
@@ -595,7 +595,7 @@ class Solver:
                 self._x_max,
                 start,
                 self._object_id,
-                int(m.grid_dims[0]),
+                int(m.grid_dims[0]) if self.num_objects > 1 else 0,
             ]
 
         outputs = [state_out.x, state_out.v, state_out.C]
