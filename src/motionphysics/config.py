@@ -258,7 +258,9 @@ class AddConstantForce(_ForceBase):
 class AddImpulse(_ForceBase):
     type: Literal["add_impulse"]
     force: Vec3
-    """Acceleration [m/s^2] applied to the selected particles during the window."""
+    """Velocity change [m/s] of the selected particles (an impulse per unit mass), delivered
+    within the substep holding ``start``, or evenly over ``[start, end)`` when ``end`` is
+    given."""
 
 
 class ForceParticlesTranslation(_ForceBase):

@@ -187,13 +187,39 @@ def test_fitted_domain_contains_particles_and_ground(sphere):
 
 
 def test_given_domain(sphere):
+    # sim.domain is the box material may occupy: its faces are the walls and the solver's
+    # PAD_CELLS (+ half a cell, prepare.WALL_PHASE) lie OUTSIDE it. (Until issue 15 the
+    # padding was taken from inside the box: domain_lo was -1 and 31 nodes spanned z.)
     dom = ((-1.0, -1.0, -1.0), (1.0, 1.0, 2.0))
     out = prepare(sphere, _cfg(), SimConfig(grid=30, domain=dom))
-    np.testing.assert_allclose(out.domain_lo.numpy(), [-1, -1, -1])
-    assert out.dx == pytest.approx(3.0 / 30)
-    assert out.grid_dims == (21, 21, 31)
+    dx = out.dx
+    assert dx == pytest.approx(3.0 / 30)
+    np.testing.assert_allclose(out.wall_lo.numpy(), [-1, -1, -1], atol=1e-6)
+    np.testing.assert_allclose(out.wall_hi.numpy(), [1, 1, 2], atol=1e-6)
+    np.testing.assert_allclose(out.domain_lo.numpy(), -1 - (PAD_CELLS + 0.5) * dx, atol=1e-6)
+    assert bool((out.domain_hi >= out.wall_hi + PAD_CELLS * dx - 1e-6).all())
+    assert out.grid_dims == (28, 28, 38)
     with pytest.raises(UserInputError, match="sim.domain"):
         prepare(sphere, _cfg(translate=(0.8, 0, 0)), SimConfig(grid=30, domain=dom))
+
+
+def test_domain_whose_floor_is_the_ground_is_valid(sphere):
+    # An object resting on the ground z = 0 in a domain starting at the ground (how a
+    # person writes it) is accepted; the ground plane and the walls sit half-way between
+    # grid nodes (prepare.WALL_PHASE), with the padding below the floor.
+    dom = ((-1.0, -1.0, 0.0), (1.0, 1.0, 1.0))
+    scene = _cfg(scale=0.3, translate=(0.0, 0.0, 0.15))
+    out = prepare(sphere, scene, SimConfig(grid=32, domain=dom), GROUND)
+    assert float(out.particles[:, 2].min()) >= -1e-6
+    phase = ((0.0 - out.domain_lo.double()) / out.dx) % 1.0
+    np.testing.assert_allclose(phase.numpy(), 0.5, atol=1e-5)
+    assert float(out.wall_lo[2]) == pytest.approx(0.0, abs=1e-6)
+    # fitted: the ground is half-way between nodes too, the walls inside the padding
+    fit = prepare(sphere, scene, SimConfig(grid=32), GROUND)
+    phase = float(((0.0 - fit.domain_lo[2].double()) / fit.dx) % 1.0)
+    assert phase == pytest.approx(0.5, abs=1e-4)
+    assert bool((fit.wall_lo >= fit.domain_lo + PAD_CELLS * fit.dx - 1e-6).all())
+    assert bool((fit.wall_hi <= fit.domain_hi - PAD_CELLS * fit.dx + 1e-6).all())
 
 
 def test_empty_after_filtering_is_a_user_error(sphere):

@@ -385,7 +385,13 @@ def test_cut_damps_grid_in_box_and_removes_particles_for_good():
     g = grid_array(v)
     prog.apply_grid(None, g, 0.0, 0, 1e-3)
     p = node_positions()
-    inside = np.all((p >= np.array(box[0]) - 1e-6) & (p <= np.array(box[1]) + 1e-6), axis=-1)
+    # damped: the nodes 1.5 cells or more inside the box (the nodes nearer its surface
+    # carry mass of the material outside, which the damping held up; issue 15)
+    depth = 1.5 * DX
+    inside = np.all(
+        (p >= np.array(box[0]) + depth - 1e-6) & (p <= np.array(box[1]) - depth + 1e-6), axis=-1
+    )
+    assert inside.any()
     np.testing.assert_allclose(g.numpy()[inside], 0.25 * v[inside], atol=ATOL)
     np.testing.assert_allclose(g.numpy()[~inside], v[~inside], atol=ATOL)
 

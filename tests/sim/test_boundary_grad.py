@@ -132,7 +132,8 @@ GRID_CASES = {
         {
             "type": "surface_collider",
             "mode": "cut",
-            "box": [[0.0, -0.3, -0.2], [0.3, 0.3, 0.3]],
+            # damping acts 1.5 cells or more inside the box (nodes x = 0.2, y, z inner)
+            "box": [[0.0, -0.3, -0.2], [0.5, 0.3, 0.3]],
             "damping": 0.3,
         }
     ],
@@ -228,7 +229,15 @@ PARTICLE_CASES = {
     ),
     "add_impulse": (
         [],
-        [{"type": "add_impulse", "force": [3.0, 0.0, 1.0], "sphere": [[0.0, 0.0, 0.05], 0.1]}],
+        # (an impulse acts in the substep holding `start`: the one tested, t = 0.015 .. 0.025)
+        [
+            {
+                "type": "add_impulse",
+                "force": [3.0, 0.0, 1.0],
+                "start": 0.02,
+                "sphere": [[0.0, 0.0, 0.05], 0.1],
+            }
+        ],
     ),
     "translation": (
         [],
@@ -255,6 +264,19 @@ PARTICLE_CASES = {
     "release": ([], [{"type": "release_particles", "layers": 3, "start": 0.0, "end": 0.03}]),
     "cut": (
         [{"type": "surface_collider", "mode": "cut", "box": [[0.02, -0.3, -0.2], [0.3, 0.3, 0.3]]}],
+        [],
+    ),
+    # collider planes project the particles behind them onto the plane after G2P
+    "project_slip": (
+        [{"type": "surface_collider", "mode": "slip", "point": [0, 0, -0.04]}],
+        [],
+    ),
+    "project_frictional": (
+        [{"type": "surface_collider", "mode": "frictional", "point": [0, 0, -0.04]}],
+        [],
+    ),
+    "project_sticky": (
+        [{"type": "surface_collider", "mode": "sticky", "point": [0, 0, -0.04]}],
         [],
     ),
     "chain": (
@@ -347,6 +369,9 @@ def test_particle_hook_gradients_match_finite_differences(case):
     if case in ("cut", "chain"):
         removed = s_out.active.numpy() == 0
         assert 0 < removed.sum() < N  # the case really exercises removal
+    if case.startswith("project"):
+        on_plane = np.abs(s_out.x.numpy()[:, 2] + 0.04) < 1e-6
+        assert 0 < on_plane.sum() < N  # the case really exercises the projection
     prog.zero_param_grads()
     tape.backward(loss=loss)
     grads = {

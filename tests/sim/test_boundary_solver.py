@@ -157,18 +157,26 @@ def test_release_holds_then_lets_layers_fall():
     assert drop == pytest.approx(0.5 * G * 0.02**2, rel=0.10)
 
 
-def test_impulse_changes_momentum_by_a_dt_per_substep():
+def test_impulse_changes_the_velocity_once():
+    # add_impulse is a velocity change [m/s] (issue 15; it used to be a constant
+    # acceleration whose window defaulted to end = 1e9 s). Given a window of two
+    # substeps it is delivered evenly over them; without an end, in the substep holding
+    # `start`, and never again.
     pts, vol = block((-0.03, -0.03, 0.0), (0.03, 0.03, 0.06))
-    forces = [
-        {"type": "add_impulse", "force": [40.0, 0.0, 0.0], "start": 0, "end": 2, "unit": "substeps"}
-    ]
-    model, solver, s0, s1 = make(pts, vol, [], forces, dims=(28, 13, 14))
     dt = 5e-4
-    _, last = run(model, solver, s0, s1, dt, 6)
-    v = last.v.numpy()
-    # two substeps of 40 m/s^2: +0.04 m/s along x; gravity adds -6 dt g along z
-    np.testing.assert_allclose(v[:, 0].mean(), 2 * dt * 40.0, rtol=1e-3)
-    np.testing.assert_allclose(v[:, 2].mean(), -6 * dt * G, rtol=1e-3)
+    windowed = {"start": 0, "end": 2, "unit": "substeps"}
+    for window, after in ((windowed, 2), ({"start": 1.5 * dt}, 2), ({"start": 1.0 * dt}, 2)):
+        forces = [{"type": "add_impulse", "force": [0.04, 0.0, 0.0], **window}]
+        model, solver, s0, s1 = make(pts, vol, [], forces, dims=(28, 13, 14))
+        vx = []
+        for s in range(6):
+            solver.step(s0, s1, dt, t=s * dt, substep=s)
+            s0, s1 = s1, s0
+            vx.append(float(s0.v.numpy()[:, 0].mean()))
+        np.testing.assert_allclose(vx[after - 1 :], 0.04, rtol=1e-3)  # +0.04 m/s, once
+        assert vx[0] < 0.04 - 1e-4
+        # gravity adds -6 dt g along z
+        np.testing.assert_allclose(s0.v.numpy()[:, 2].mean(), -6 * dt * G, rtol=1e-3)
 
 
 def test_gradients_through_solver_steps_match_finite_differences():

@@ -519,7 +519,8 @@ def _arr(a, dtype):
     return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=dtype)
 
 
-def test_hand_written_transfer_adjoints_match_warps_generated_ones():
+@pytest.mark.parametrize("objects", [1, 2])
+def test_hand_written_transfer_adjoints_match_warps_generated_ones(objects):
     """``_p2g_adjoint`` / ``_g2p_adjoint`` (separable, incremental sums) against the adjoint
     Warp generates from ``_p2g`` / ``_g2p`` themselves, with random cotangents on every
     output: the same derivative evaluated two ways, so they agree to float32 round-off
@@ -529,13 +530,17 @@ def test_hand_written_transfer_adjoints_match_warps_generated_ones():
     x, v, C, _ = _random_state(rng, P, 0.3, 0.7)
     lo, dx, dims = wp.vec3(0.0, 0.0, 0.0), DX, wp.vec3i(*DIMS)
     off = wp.vec3i(2, 3, 1)
-    region = (1, 14, 13, 15)  # one chunk; covers every stencil of x in [0.3, 0.7]
+    # one chunk (per object); covers every stencil of x in [0.3, 0.7]
+    region = (objects, 14, 13, 15)
     xa, va = _arr(x, wp.vec3), _arr(v, wp.vec3)
     A = _arr(rng.normal(0, 1.0, (P, 3, 3)), wp.mat33)
     active = _arr(np.ones(P), float)
     vol = _arr(rng.uniform(1e-5, 3e-5, P), float)
     rho = _arr(rng.uniform(400, 600, P), float)
-    p2g_in = [xa, va, A, active, vol, rho, lo, dx, dims, 0, 0, off]
+    # two objects: each particle scatters into its object's region grid and gathers from
+    # its object's field (stacked along the first axis)
+    oid = wp.array(rng.integers(0, objects, P).astype(np.int32), dtype=wp.int32)
+    p2g_in = [xa, va, A, active, vol, rho, lo, dx, dims, 0, 0, off, oid, 1 if objects > 1 else 0]
     a_mv = _arr(rng.normal(size=(*region, 4)), wp.vec4)
 
     def zeros_like_inputs(arrs):
@@ -559,10 +564,10 @@ def test_hand_written_transfer_adjoints_match_warps_generated_ones():
         g, e = got.numpy(), want.numpy()
         np.testing.assert_allclose(g, e, rtol=0, atol=1e-4 * np.abs(e).max())
 
-    grid_v = _arr(rng.normal(size=(*DIMS, 3)), wp.vec3)
+    grid_v = _arr(rng.normal(size=(objects * DIMS[0], *DIMS[1:], 3)), wp.vec3)
     x_min, x_max = wp.vec3(0.0, 0.0, 0.0), wp.vec3(1.0, 1.0, 1.0)
     dt = 1e-3
-    g2p_in = [xa, grid_v, lo, dx, dt, dims, x_min, x_max, 0]
+    g2p_in = [xa, grid_v, lo, dx, dt, dims, x_min, x_max, 0, oid, DIMS[0] if objects > 1 else 0]
     a_out = [
         _arr(rng.normal(size=(P, 3)), wp.vec3),
         _arr(rng.normal(size=(P, 3)), wp.vec3),

@@ -37,6 +37,7 @@ __all__ = [
     "rotation_matrix",
     "regularise_anisotropy",
     "fit_domain",
+    "motion_extent",
     "voxelise",
     "stratified_subset",
     "PAD_CELLS",
@@ -44,8 +45,8 @@ __all__ = [
 ]
 
 PAD_CELLS = 3
-"""Particles end at least this many cells inside the domain (quadratic B-spline stencil
-plus the bounding-box wall layer)."""
+"""Grid cells the solver adds outside the material box (``sim.domain``) on every side:
+the quadratic B-spline stencil (2) plus the wall layer of ``bounding_box``."""
 FILL_SEED = 0
 """Seed of the deterministic subsampling (interior cap, particle downsampling)."""
 _CLOSE_CELLS = 1
@@ -86,6 +87,15 @@ class SimScene:
     INRIA cameras, which live in the source frame)."""
     total_volume: float
     """Occupied volume of the voxelisation [m^3] (= volumes.sum() up to rounding)."""
+    wall_lo: torch.Tensor | None = None
+    """Low corner of the material box [m], shape (3,): ``sim.domain`` as given, or the
+    fitted box; its faces are walls (the grid extends PAD_CELLS cells beyond them)."""
+    wall_hi: torch.Tensor | None = None
+    """High corner of the material box [m], shape (3,)."""
+    object_id: torch.Tensor | None = None
+    """Object index of each particle, shape (P,), int64, or None (one object). ``prepare``
+    makes one object; a scene of several objects concatenates their particles and sets
+    this (``sim.build_simulation`` reads it: one grid velocity field per object)."""
 
     @property
     def n_particles(self) -> int:
@@ -178,15 +188,101 @@ def _grid_from_box(
     return dx, dims, lo + (np.asarray(dims) - 1) * dx
 
 
+MOTION_CAP = 4.0
+"""The fitted domain grows along the motion the config implies by at most this many
+object extents per side (beyond it the resolution would collapse; the rollout reports
+the wall reached, and ``sim.domain`` can be given instead)."""
+FLUID_SPREAD = {"sand": 2.0, "newtonian": 3.0, "non_newtonian": 2.0}
+"""Sideways spread of a collapsing column, in object heights per side (dam-break fronts
+run out ~2-4 column heights within a few collapse times; sand's run-out is shorter)."""
+
+
+def motion_extent(
+    sim_cfg, forces=(), boundary_conditions=(), material_class=None, height: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """How far [m] the material may move from its start, per axis, ``(down (3,) <= 0,
+    up (3,) >= 0)``: the ballistic path of its centre over the simulated time
+    ``(frames - 1) frame_dt`` under ``initial_velocity``, gravity (only when a collider
+    plane faces it: else the domain's lower wall is the floor), ``add_constant_force``
+    (over its window) and ``add_impulse`` (a velocity change at its start), motion into an
+    axis-aligned collider plane stopped there by the caller; plus the sideways spread of a
+    fluid or sand column of ``height`` [m] (``FLUID_SPREAD``, perpendicular to gravity)."""
+    T = max(0.0, (int(sim_cfg.frames) - 1) * float(sim_cfg.frame_dt))
+    steps = 400
+    h = T / steps if T > 0 else 0.0
+    v = np.asarray(sim_cfg.initial_velocity, dtype=np.float64).copy()
+    g = np.asarray(sim_cfg.gravity, dtype=np.float64)
+    floors = [
+        bc
+        for bc in boundary_conditions
+        if _get(bc, "type") == "surface_collider"
+        and _get(bc, "mode") != "cut"
+        and float(np.dot(np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64), g)) < 0
+    ]
+    if not floors:
+        # nothing stops a fall: the domain's lower wall is the floor, as it always was
+        # (growing the domain would only coarsen the grid; the rollout reports the wall)
+        g = np.zeros(3)
+    pos = np.zeros(3)
+    lo, hi = np.zeros(3), np.zeros(3)
+    kicks = []
+    accels = []
+    for f in forces:
+        kind = _get(f, "type")
+        if _get(f, "unit", "seconds") == "substeps":
+            continue  # (substep windows: too short to move the domain)
+        start, end = float(_get(f, "start", 0.0)), float(_get(f, "end", 1e9))
+        vec = np.asarray(_get(f, "force", (0.0, 0.0, 0.0)), dtype=np.float64)
+        if kind == "add_impulse":
+            kicks.append((start, vec))
+        elif kind == "add_constant_force":
+            accels.append((start, end, vec))
+    for i in range(steps):
+        t = i * h
+        for start, dv in kicks:
+            if t <= start < t + h:
+                v = v + dv
+        a = g.copy()
+        for start, end, acc in accels:
+            if start <= t < end:
+                a = a + acc
+        v = v + h * a
+        pos = pos + h * v
+        lo, hi = np.minimum(lo, pos), np.maximum(hi, pos)
+    spread = FLUID_SPREAD.get(material_class or "", 0.0) * float(height)
+    if spread > 0:
+        gn = float(np.linalg.norm(g))
+        down = g / gn if gn > 0 else np.array([0.0, 0.0, -1.0])
+        side = np.sqrt(np.clip(1.0 - down**2, 0.0, 1.0))  # weight of each axis across gravity
+        lo, hi = lo - spread * side, hi + spread * side
+    return lo, hi
+
+
+def _height(points: np.ndarray, gravity) -> float:
+    """Extent [m] of ``points`` along gravity (the largest extent without gravity)."""
+    g = np.asarray(gravity, dtype=np.float64)
+    n = float(np.linalg.norm(g))
+    if not n > 0:
+        return float(np.ptp(points, axis=0).max())
+    return float(np.ptp(points @ (g / n)))
+
+
 def fit_domain(
-    points: np.ndarray, grid: int, boundary_conditions=(), fallback_extent: float = 1e-3
+    points: np.ndarray,
+    grid: int,
+    boundary_conditions=(),
+    fallback_extent: float = 1e-3,
+    motion: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, float, tuple[int, int, int], np.ndarray]:
     """Fitted domain around particles ``points (P,3)`` [m] and the ground planes.
 
     Bounding box of the points, grown by 0.5 x its largest extent on every side, then
     extended to contain, for every ``surface_collider``, the point of its plane nearest
     to the box centre (so a ground plane below a floating object is inside), then padded
-    by PAD_CELLS cells on every side. With the padding included, ``dx = longest side /
+    by PAD_CELLS cells on every side. ``motion`` = :func:`motion_extent`'s ``(down,
+    up)`` [m]: the box (before the 0.5 extent margin) first grows by it, at most
+    ``MOTION_CAP`` extents per side and not through an axis-aligned collider plane the
+    object is in front of. With the padding included, ``dx = longest side /
     grid`` (so ``dx = longest unpadded side / (grid - 2*PAD_CELLS)``). When the points'
     extent is negligible (one splat) ``fallback_extent`` [m] stands in for it.
     Returns (domain_lo (3,), dx, grid_dims, domain_hi (3,)).
@@ -197,6 +293,26 @@ def fit_domain(
     if not ext >= 1e-6 * max(fallback_extent, float(np.abs(points).max())):
         ext = fallback_extent  # a single point (or all at one place): size from the splats
     centre = 0.5 * (lo + hi)
+    if motion is not None:
+        down = np.maximum(np.asarray(motion[0], dtype=np.float64), -MOTION_CAP * ext)
+        up = np.minimum(np.asarray(motion[1], dtype=np.float64), MOTION_CAP * ext)
+        grown_lo, grown_hi = lo + down, hi + up
+        for bc in boundary_conditions:  # motion stops at the planes in front of the object
+            if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
+                continue
+            n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
+            p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
+            nn = float(np.linalg.norm(n))
+            if not nn > 0:
+                continue
+            a = int(np.argmax(np.abs(n)))
+            if abs(abs(n[a]) / nn - 1.0) > 1e-9:
+                continue
+            if n[a] > 0 and p[a] <= lo[a]:
+                grown_lo[a] = max(grown_lo[a], p[a])
+            elif n[a] < 0 and p[a] >= hi[a]:
+                grown_hi[a] = min(grown_hi[a], p[a])
+        lo, hi = grown_lo, grown_hi
     lo = lo - 0.5 * ext
     hi = hi + 0.5 * ext
     for bc in boundary_conditions:
@@ -218,20 +334,80 @@ def fit_domain(
     return lo, dx, dims, hi
 
 
+WALL_PHASE = 0.5
+"""Walls and axis-aligned collider planes sit this fraction of a cell past a grid node.
+Grid conditions act on the nodes on or behind a plane, and a body settles against them
+at a distance that depends on how the plane falls between nodes: with a plane ON a node
+a soft elastic cube came to rest with its lowest particle ~0.8 dx above it, with the plane
+half-way between nodes 0.0-0.35 dx above (what a resting body's half particle spacing
+explains); fluids and sand flow into the node layer and are projected back onto the plane
+after G2P (``boundary_kernels._project_plane``, the G2P wall clamp)."""
+
+GIVEN_DOMAIN_SLACK = 0.5
+"""A given ``sim.domain`` may leave the scene's particles up to this many cells outside it
+(round-off of a capture resting on the floor face); the first substep projects them in."""
+
+
 def _given_domain(points: np.ndarray, domain, grid: int):
+    """Grid around a given material box ``domain``: ``dx = longest side / grid`` (cells along
+    the longest side of the domain, as SimConfig.grid says), the solver's PAD_CELLS added
+    OUTSIDE it (see :func:`_aligned_grid`). Returns (dx, wall lo, wall hi)."""
     lo = np.asarray(domain[0], dtype=np.float64)
     hi = np.asarray(domain[1], dtype=np.float64)
-    dx, dims, hi_nodes = _grid_from_box(lo, hi, grid)
+    dx = float((hi - lo).max()) / grid
     pmin, pmax = points.min(axis=0), points.max(axis=0)
-    margin = PAD_CELLS * dx
-    if (pmin < lo + margin).any() or (pmax > hi_nodes - margin).any():
+    slack = GIVEN_DOMAIN_SLACK * dx
+    if (pmin < lo - slack).any() or (pmax > hi + slack).any():
         raise UserInputError(
             f"sim.domain: the scene's particles span {np.round(pmin, 4).tolist()} to "
-            f"{np.round(pmax, 4).tolist()} m but must lie at least {PAD_CELLS} cells "
-            f"({margin:.4g} m) inside the domain {np.round(lo, 4).tolist()} to {np.round(hi, 4).tolist()}; "
+            f"{np.round(pmax, 4).tolist()} m, outside the domain {np.round(lo, 4).tolist()} to "
+            f"{np.round(hi, 4).tolist()} (material may only occupy the domain); "
             "enlarge sim.domain or set it to null"
         )
-    return lo, dx, dims, hi_nodes
+    return dx, lo, hi
+
+
+def _wall_targets(walls_lo: np.ndarray, walls_hi: np.ndarray, boundary_conditions) -> np.ndarray:
+    """Per axis, the plane to put half-way between grid nodes: the first axis-aligned
+    (non-cut) ``surface_collider`` plane of that axis inside the material box, else the
+    box's low face."""
+    target = np.asarray(walls_lo, dtype=np.float64).copy()
+    found = [False, False, False]
+    for bc in boundary_conditions:
+        if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
+            continue
+        n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
+        p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
+        nn = float(np.linalg.norm(n))
+        if not nn > 0:
+            continue
+        a = int(np.argmax(np.abs(n)))
+        if abs(abs(n[a]) / nn - 1.0) > 1e-9 or found[a]:
+            continue
+        if walls_lo[a] - 1e-9 <= p[a] <= walls_hi[a] + 1e-9:
+            target[a] = p[a]
+            found[a] = True
+    return target
+
+
+def _aligned_grid(walls_lo, walls_hi, dx: float, targets, dims=None):
+    """Grid origin with every target plane half-way between two nodes (``WALL_PHASE``) and at
+    least PAD_CELLS cells beyond the walls. Returns (grid lo, dims, grid hi, walls hi):
+    ``dims`` given (the fitted domain keeps its node count), the high walls end PAD_CELLS
+    cells inside the last node instead."""
+    walls_lo = np.asarray(walls_lo, dtype=np.float64)
+    walls_hi = np.asarray(walls_hi, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64)
+    m = np.ceil((targets - walls_lo) / dx + PAD_CELLS - WALL_PHASE - 1e-9)
+    g_lo = targets - (m + WALL_PHASE) * dx
+    if dims is None:
+        dims = tuple(
+            int(math.ceil((h + PAD_CELLS * dx - g) / dx - 1e-9)) + 1
+            for g, h in zip(g_lo, walls_hi, strict=True)
+        )
+    g_hi = g_lo + (np.asarray(dims) - 1) * dx
+    walls_hi = np.minimum(walls_hi, g_hi - PAD_CELLS * dx)
+    return g_lo, tuple(int(d) for d in dims), g_hi, walls_hi
 
 
 # ---- 5. voxelisation and fill -------------------------------------------------------------
@@ -395,12 +571,16 @@ def prepare(
     scene_cfg: SceneConfig,
     sim_cfg: SimConfig,
     boundary_conditions: list | tuple = (),
+    forces: list | tuple = (),
+    material_class: str | None = None,
 ) -> SimScene:
     """Transform, filter and regularise ``scene``; fill it, size the grid, downsample.
 
     See the module docstring for the order. Raises UserInputError when nothing is left
     after the opacity filter and crop, or when a given ``sim.domain`` does not hold the
-    particles with PAD_CELLS cells to spare.
+    particles. A fitted domain leaves room for the motion the config implies
+    (:func:`motion_extent`: ``sim`` initial velocity and gravity over the simulated time,
+    ``forces``, and the spread of a ``material_class`` fluid or sand).
     """
     origin_name = scene_cfg.source
     scene.validate(origin_name)
@@ -437,11 +617,23 @@ def prepare(
     big = float(splats.scales.max())
     fallback = max(4.0 * big, 1e-3) if math.isfinite(big) else 1e-3
     if sim_cfg.domain is not None:
-        lo, dx, dims, hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
+        dx, wall_lo, wall_hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
+        keep_dims = None
     else:
-        lo, dx, dims, hi = fit_domain(
-            vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback
+        motion = motion_extent(
+            sim_cfg,
+            forces,
+            boundary_conditions,
+            material_class,
+            height=_height(vis, sim_cfg.gravity),
         )
+        lo, dx, keep_dims, hi = fit_domain(
+            vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback, motion=motion
+        )
+        # the material box: the fitted box without the solver's padding cells
+        wall_lo, wall_hi = lo + PAD_CELLS * dx, hi - PAD_CELLS * dx
+    targets = _wall_targets(wall_lo, wall_hi, boundary_conditions)
+    lo, dims, hi, wall_hi = _aligned_grid(wall_lo, wall_hi, dx, targets, keep_dims)
 
     # Voxel box: cells aligned with the domain's grid around the particles, with a free
     # margin so that the outside is connected around the object (it may poke out of the
@@ -506,4 +698,6 @@ def prepare(
         grid_dims=tuple(int(d) for d in dims),
         source_to_world=torch.from_numpy(m),
         total_volume=total_volume,
+        wall_lo=torch.from_numpy(np.asarray(wall_lo, dtype=np.float64)).float(),
+        wall_hi=torch.from_numpy(np.asarray(wall_hi, dtype=np.float64)).float(),
     )

@@ -8,7 +8,11 @@ Public API (imported lazily, so ``import motionphysics.sim`` does not initialise
 - :class:`Rollout` (checkpointed forward/backward, grad modes full / window /
   last_substep);
 - :func:`build_simulation` → :class:`Simulation` (``run(frames) -> (xs, Fs)``);
-- :func:`simulate` (bridge.py): the torch autograd entry point.
+- :func:`simulate` (bridge.py): the torch autograd entry point;
+- several objects: ``Model.from_particles(..., object_id=[P])`` (or ``object_id=`` /
+  ``sim_scene.object_id`` in :func:`build_simulation`) gives each object its own grid
+  velocity field with multi-field contact; :func:`per_object` makes per-particle
+  parameter arrays from one value per object.
 """
 
 from __future__ import annotations
@@ -30,11 +34,13 @@ __all__ = [
     "build_simulation",
     "simulate",
     "PARAM_NAMES",
+    "per_object",
 ]
 
 _WHERE = {
     "Model": "model",
     "PARAM_NAMES": "model",
+    "per_object": "model",
     "State": "state",
     "Solver": "solver",
     "SolverConfig": "solver",

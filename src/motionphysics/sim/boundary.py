@@ -12,7 +12,9 @@ substep (CONTRACTS.md, "sim"):
   grid update (optionally on the active sub-box of nodes only):
   ``clamp_grid``, ``bounding_box``, ``surface_collider`` (sticky / slip / frictional / cut);
 * ``apply_post_g2p(model, state_in, state_out, t, substep, dt)`` -- additive forces
-  (``add_constant_force``, ``add_impulse``: v += dt a, x += dt^2 a), imposed motion
+  (``add_constant_force``: an acceleration ``force`` [m/s^2], v += dt a, x += dt^2 a;
+  ``add_impulse``: a velocity change ``force`` [m/s] delivered within the substep that
+  holds ``start``, or evenly over ``[start, end)`` when ``end`` is given), imposed motion
   (``force_particles_translation`` / ``_rotation``: x = x_in moved by the imposed motion),
   frozen particles of ``release_particles`` (held at x_in) and removal by ``cut``.
 
@@ -439,18 +441,27 @@ class BoundaryProgram:
         particle_count, device, domain_lo, dx, grid_dims: the geometry it was built for.
     """
 
-    def __init__(self, *, particle_count: int, device: str, domain_lo, dx: float, grid_dims):
+    def __init__(
+        self, *, particle_count: int, device: str, domain_lo, dx: float, grid_dims, walls=None
+    ):
         self.particle_count = int(particle_count)
         self.device = device
         self.domain_lo = tuple(float(a) for a in domain_lo)
         self.dx = float(dx)
         self.grid_dims = tuple(int(n) for n in grid_dims)
+        self.walls = None if walls is None else tuple(tuple(float(a) for a in w) for w in walls)
+        """The material box ``(lo, hi)`` [m] whose faces are walls (Model.walls), or None
+        (legacy: particles kept in :func:`particle_bounds`, walls by ``padding`` only)."""
+        self._plane_ops: list[_GridOp] = []  # colliders whose particles are projected
         self.params: list[BoundaryParam] = []
         self.selected: dict[str, int] = {}
         self._grid_ops: list[_GridOp] = []
         self._particle_ops: list[_ParticleOp] = []
         self._cut_ops: list[_CutOp] = []
-        self._x_min, self._x_max = particle_bounds(self.domain_lo, self.dx, self.grid_dims)
+        if self.walls is None:
+            self._x_min, self._x_max = particle_bounds(self.domain_lo, self.dx, self.grid_dims)
+        else:
+            self._x_min, self._x_max = self.walls
 
     # -------------------------------------------------------------- construction
 
@@ -477,6 +488,7 @@ class BoundaryProgram:
             dx=model.dx,
             grid_dims=model.grid_dims,
             device=model.device,
+            walls=getattr(model, "walls", None),
         )
 
     @classmethod
@@ -490,11 +502,13 @@ class BoundaryProgram:
         dx: float,
         grid_dims,
         device: str = "cpu",
+        walls=None,
     ) -> BoundaryProgram:
         """Build from config entries and explicit geometry.
 
         ``x0``: initial particle positions [m], (P, 3); ``domain_lo`` [m] (3,) position of
-        node (0,0,0); ``dx`` [m]; ``grid_dims`` (nx, ny, nz) node counts.
+        node (0,0,0); ``dx`` [m]; ``grid_dims`` (nx, ny, nz) node counts; ``walls``: the
+        material box ``(lo, hi)`` [m] (Model.walls) or None.
         Bad entries raise :class:`UserInputError` naming ``boundary_conditions[i]`` / ``forces[i]``.
         """
         if hasattr(x0, "detach"):
@@ -508,6 +522,7 @@ class BoundaryProgram:
             domain_lo=domain_lo,
             dx=dx,
             grid_dims=grid_dims,
+            walls=walls,
         )
         for i, bc in enumerate(boundary_conditions):
             where = f"boundary_conditions[{i}]"
@@ -564,8 +579,9 @@ class BoundaryProgram:
                     f"{where}.padding: {bc.padding} cells leaves no interior in a grid of {self.grid_dims} nodes"
                 )
             param = self._new_param(f"{where}.friction", float(bc.friction), "-")
+            first, last = self._wall_nodes(int(bc.padding))
             self._grid_ops.append(
-                _GridOp(where, win, "bounding_box", {"padding": int(bc.padding)}, param)
+                _GridOp(where, win, "bounding_box", {"first": first, "last": last}, param)
             )
         elif isinstance(bc, SurfaceCollider):
             point = _finite(bc.point, f"{where}.point")
@@ -598,9 +614,30 @@ class BoundaryProgram:
             if bc.mode == "frictional":
                 friction = DEFAULT_COLLIDER_FRICTION if bc.friction is None else float(bc.friction)
                 param = self._new_param(f"{where}.friction", friction, "-")
-            self._grid_ops.append(_GridOp(where, win, bc.mode, geo, param))
+            op = _GridOp(where, win, bc.mode, geo, param)
+            self._grid_ops.append(op)
+            self._plane_ops.append(op)
         else:  # pragma: no cover - the config's discriminated union admits nothing else
             raise UserInputError(f"{where}.type: unknown boundary condition {type(bc).__name__}")
+
+    def _wall_nodes(self, padding: int):
+        """``(first, last)`` node indices per axis (wp.vec3i): ``bounding_box`` constrains the
+        nodes ``i <= first`` and ``i >= last``. These are the ``padding`` outermost nodes of the
+        grid and, with explicit :attr:`walls`, every node on or beyond a wall face (so the
+        wall acts at the domain face, where G2P's projection also holds the particles)."""
+        wp = init_warp()
+        first = [padding - 1] * 3
+        last = [n - padding for n in self.grid_dims]
+        if self.walls is not None:
+            tol = 1e-4
+            for a in range(3):
+                g_lo = (self.walls[0][a] - self.domain_lo[a]) / self.dx
+                g_hi = (self.walls[1][a] - self.domain_lo[a]) / self.dx
+                # nodes on or beyond the face, as a collider plane's (scene.prepare puts
+                # the faces half-way between nodes: see prepare.WALL_PHASE)
+                first[a] = max(first[a], int(math.floor(g_lo + tol)))
+                last[a] = min(last[a], int(math.ceil(g_hi - tol)))
+        return wp.vec3i(*first), wp.vec3i(*last)
 
     def _add_force(self, force, x0: np.ndarray, where: str) -> None:
         wp = init_warp()
@@ -608,7 +645,15 @@ class BoundaryProgram:
         sel = _selection(force, x0, where)
         self.selected[where] = int(sel.sum())
         mask = wp.array(sel.astype(np.float32), dtype=float, device=self.device)
-        if isinstance(force, AddConstantForce | AddImpulse):
+        if isinstance(force, AddImpulse):
+            # an impulse: the velocity change `force` [m/s], delivered evenly over the window
+            # [start, end) when `end` is given, else within the one substep holding `start`
+            param = self._new_param(f"{where}.force", _finite(force.force, f"{where}.force"), "m/s")
+            given_end = "end" in force.model_fields_set
+            self._particle_ops.append(
+                _ParticleOp(where, win, "impulse", mask, {"given_end": given_end}, param)
+            )
+        elif isinstance(force, AddConstantForce):
             param = self._new_param(
                 f"{where}.force", _finite(force.force, f"{where}.force"), "m/s^2"
             )
@@ -762,7 +807,11 @@ class BoundaryProgram:
                 )
             elif op.kind == "bounding_box":
                 _launch(
-                    K._bounding_box, dims, [off_v, s["padding"], op.param.array], [grid_v], **kw
+                    K._bounding_box,
+                    dims,
+                    [off_v, s["first"], s["last"], op.param.array],
+                    [grid_v],
+                    **kw,
                 )
             elif op.kind == "cut":
                 _launch(
@@ -818,6 +867,17 @@ class BoundaryProgram:
                         device=self.device,
                     )
                 continue
+            if op.kind == "impulse":
+                frac = _impulse_fraction(op, t, substep, dt)
+                if frac > 0.0:
+                    _launch(
+                        K._add_velocity_change,
+                        n,
+                        [op.mask, op.param.array, float(frac), float(dt), *xb],
+                        [state_out.x, state_out.v],
+                        device=self.device,
+                    )
+                continue
             if not op.window.active(t, substep, dt):
                 continue
             if op.kind == "accel":
@@ -854,6 +914,20 @@ class BoundaryProgram:
                 )
         if self._cut_ops:
             self._apply_cuts(state_in, state_out, t, substep, dt)
+        # Last: particles behind a collider plane are projected onto it (the grid condition
+        # alone lets material settle about half a cell into the plane).
+        for op in self._plane_ops:
+            if not op.window.active(t, substep, dt):
+                continue
+            s = op.scalars
+            sticky = int(op.kind == "sticky")
+            _launch(
+                K._project_plane,
+                n,
+                [s["point"], s["normal"], sticky],
+                [state_out.x, state_out.v],
+                device=self.device,
+            )
 
     def _apply_cuts(self, state_in, state_out, t, substep, dt) -> None:
         from motionphysics.sim import boundary_kernels as K
@@ -882,6 +956,23 @@ class BoundaryProgram:
             wp = init_warp()
             self._zero_friction_arr = wp.zeros(1, dtype=float, device=self.device)
         return self._zero_friction_arr
+
+
+def _impulse_fraction(op, t: float, substep: int, dt: float) -> float:
+    """Fraction of an ``add_impulse``'s velocity change delivered in this substep: 1 in the
+    substep holding ``start`` when no ``end`` was given, else ``dt / (end - start)`` (one
+    substep's share; ``1 / (end - start)`` with ``unit: substeps``) inside the window."""
+    w = op.window
+    if not op.scalars["given_end"]:
+        if w.unit == "substeps":
+            return 1.0 if substep == int(w.start) else 0.0
+        slack = _TIME_EPS * float(dt)  # a start on a substep edge belongs to the later one
+        return 1.0 if t - slack <= w.start < t + dt - slack else 0.0
+    if not w.active(t, substep, dt):
+        return 0.0
+    if w.unit == "substeps":
+        return 1.0 / (w.end - w.start)
+    return dt / (w.end - w.start)
 
 
 def _release_times(

@@ -31,7 +31,13 @@ MODE_STICKY = wp.constant(0)
 MODE_SLIP = wp.constant(1)
 MODE_FRICTIONAL = wp.constant(2)
 
+CUT_DAMP_DEPTH = wp.constant(1.5)
+"""A cut damps grid velocities only this many cells or more inside its region: the
+quadratic stencil of a particle outside the region reaches 1.5 cells into it."""
+
 CONTACT_TOL = wp.constant(1.0e-4)
+
+
 """Signed-distance tolerance of contact tests, as a fraction of dx (float32 round-off
 of node positions; a node exactly on the plane is in contact)."""
 
@@ -90,44 +96,42 @@ def _clamp_grid(
 @wp.kernel
 def _bounding_box(
     off: wp.vec3i,
-    padding: int,
+    first: wp.vec3i,
+    last: wp.vec3i,
     friction: wp.array(dtype=float),
     src_off: wp.vec3i,
     v_src: wp.array3d(dtype=wp.vec3),
     v_dst: wp.array3d(dtype=wp.vec3),
 ):
-    # Domain walls: within `padding` nodes of a face, the outward component is removed;
-    # Coulomb friction then acts on what remains (the tangential part).
+    # Domain walls: at nodes i <= first (low faces) and i >= last (high faces) per axis,
+    # the outward component is removed; Coulomb friction then acts on what remains.
     i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
     i = i + off[0]
     j = j + off[1]
     k = k + off[2]
     v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
-    nx = v_dst.shape[0]
-    ny = v_dst.shape[1]
-    nz = v_dst.shape[2]
     vx = v[0]
     vy = v[1]
     vz = v[2]
     rx = 0.0
     ry = 0.0
     rz = 0.0
-    if i < padding and vx < 0.0:
+    if i <= first[0] and vx < 0.0:
         rx = vx
         vx = 0.0
-    if i >= nx - padding and vx > 0.0:
+    if i >= last[0] and vx > 0.0:
         rx = vx
         vx = 0.0
-    if j < padding and vy < 0.0:
+    if j <= first[1] and vy < 0.0:
         ry = vy
         vy = 0.0
-    if j >= ny - padding and vy > 0.0:
+    if j >= last[1] and vy > 0.0:
         ry = vy
         vy = 0.0
-    if k < padding and vz < 0.0:
+    if k <= first[2] and vz < 0.0:
         rz = vz
         vz = 0.0
-    if k >= nz - padding and vz > 0.0:
+    if k >= last[2] and vz > 0.0:
         rz = vz
         vz = 0.0
     out = wp.vec3(vx, vy, vz)
@@ -153,6 +157,7 @@ def _surface_collider(
 ):
     # Plane (point, unit normal towards the free side). Nodes on or behind it are in
     # contact: sticky -> 0; slip -> inward normal part removed; frictional -> Coulomb.
+    # (Particles behind it are projected onto it after G2P: _project_plane.)
     i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
     i = i + off[0]
     j = j + off[1]
@@ -187,7 +192,10 @@ def _cut_grid(
     v_src: wp.array3d(dtype=wp.vec3),
     v_dst: wp.array3d(dtype=wp.vec3),
 ):
-    # Cut region (the box, or the half-space behind the plane): velocity scaled by 1 - damping.
+    # Cut region (the box, or the half-space behind the plane), shrunk by CUT_DAMP_DEPTH
+    # cells: velocity scaled by 1 - damping. Material in the region is removed (and
+    # carries no mass); the nodes within a stencil's reach of the region's surface also
+    # carry the remaining material's mass, and damping them held it up.
     i, j, k = wp.tid()  # launched over a sub-box of the grid starting at `off`
     i = i + off[0]
     j = j + off[1]
@@ -195,16 +203,48 @@ def _cut_grid(
     v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
     xn = _node_pos(i, j, k, lo, dx)
     inside = False
+    depth = CUT_DAMP_DEPTH * dx
     if use_box != 0:
-        inside = _in_box(xn, box_lo, box_hi, CONTACT_TOL * dx)
+        shrink = wp.vec3(depth, depth, depth)
+        inside = _in_box(xn, box_lo + shrink, box_hi - shrink, CONTACT_TOL * dx)
     else:
-        inside = wp.dot(xn - point, normal) <= CONTACT_TOL * dx
+        inside = wp.dot(xn - point, normal) <= (CONTACT_TOL * dx - depth)
     if inside:
         v = (1.0 - damping[0]) * v
     v_dst[i, j, k] = v
 
 
 # ----------------------------------------------------------------------- particles
+
+
+@wp.kernel
+def _project_plane(
+    point: wp.vec3,
+    normal: wp.vec3,
+    sticky: int,
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # After G2P: a particle behind a collider plane (signed distance d < 0) is moved onto
+    # it (x - d n) and its inward normal velocity removed (sticky: all of it). The grid
+    # condition acts on nodes, so without this material settles ~half a cell into the
+    # plane. Piecewise linear: the adjoint is the projection's where it acts.
+    p = wp.tid()
+    x = x_src[p]
+    v = v_src[p]
+    d = wp.dot(x - point, normal)
+    if d < 0.0:
+        x = x - d * normal
+        if sticky != 0:
+            v = wp.vec3(0.0, 0.0, 0.0)
+        else:
+            vn = wp.dot(v, normal)
+            if vn < 0.0:
+                v = v - vn * normal
+    x_dst[p] = x
+    v_dst[p] = v
 
 
 @wp.func
@@ -237,6 +277,33 @@ def _add_acceleration(
         a = accel[0]
         v = v + (m * dt) * a
         x = _clamp_vec(x + (m * dt * dt) * a, x_min, x_max)
+    x_dst[p] = x
+    v_dst[p] = v
+
+
+@wp.kernel
+def _add_velocity_change(
+    mask: wp.array(dtype=float),
+    dv: wp.array(dtype=wp.vec3),
+    frac: float,
+    dt: float,
+    x_min: wp.vec3,
+    x_max: wp.vec3,
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # After G2P: the share `frac` of an impulse's velocity change dv [m/s] this substep:
+    # v += frac dv, x += dt frac dv (as if it had been on the grid velocities).
+    p = wp.tid()
+    m = mask[p]
+    x = x_src[p]
+    v = v_src[p]
+    if m > 0.0:
+        d = (m * frac) * dv[0]
+        v = v + d
+        x = _clamp_vec(x + dt * d, x_min, x_max)
     x_dst[p] = x
     v_dst[p] = v
 

@@ -42,6 +42,9 @@ class Simulation:
     frame_dt: float
     frames: int = 48
     _rollout: Rollout | None = field(default=None, repr=False)
+    last: RolloutResult | None = field(default=None, repr=False)
+    """The last :meth:`run`'s full result (``active`` [T, P] mask of particles a cut
+    removed, ``wall_hits`` [{frame, wall}] of the domain walls material reached)."""
 
     @property
     def dt(self) -> float:
@@ -68,6 +71,7 @@ class Simulation:
             keep_velocities=return_velocities,
             keep_checkpoints=False,
         )
+        self.last = res
         if return_velocities:
             return res.xs, res.Fs, res.vs
         return res.xs, res.Fs
@@ -93,12 +97,15 @@ def build_simulation(
     device: str = "cpu",
     requires_grad: bool = False,
     solver_config: SolverConfig | None = None,
+    object_id: Any = None,
+    contact_friction: float = 0.0,
 ) -> Simulation:
     """Everything needed to simulate ``sim_scene`` under ``run_cfg``.
 
     Args:
         sim_scene: ``scene.prepare.SimScene`` (particles [P,3] m, volumes [P] m^3,
-            domain_lo [3] m, dx m, grid_dims).
+            domain_lo [3] m, dx m, grid_dims; optional wall_lo / wall_hi [3] m, the
+            material box whose faces are walls).
         run_cfg: ``config.RunConfig`` (uses ``sim`` (frames, frame_dt, substeps, gravity,
             initial_velocity), ``boundary_conditions`` and ``forces``).
         material_sim: sim-unit values, ``'class'`` (name or per-particle ids) plus
@@ -106,8 +113,17 @@ def build_simulation(
         device: ``"cpu"`` or ``"cuda"``.
         requires_grad: allocate gradient buffers on the parameter arrays and initial
             velocity (for :mod:`.bridge`).
+        object_id: per-particle object index (P,) ints, or None: ``sim_scene.object_id``
+            when the scene has one, else one object. Each object gets its own grid
+            velocity field and contact between them (``kernels._make_contact_update``);
+            per-object materials are per-particle arrays in ``material_sim`` (see
+            :func:`~.model.per_object`).
+        contact_friction: Coulomb coefficient between objects (0: frictionless).
     """
     sim_cfg = run_cfg.sim
+    walls = None
+    if getattr(sim_scene, "wall_lo", None) is not None:
+        walls = (_to_numpy(sim_scene.wall_lo), _to_numpy(sim_scene.wall_hi))
     model = Model.from_particles(
         sim_scene.volumes,
         material_sim,
@@ -118,6 +134,9 @@ def build_simulation(
         device=device,
         requires_grad=requires_grad,
         positions=sim_scene.particles,
+        walls=walls,
+        object_id=object_id if object_id is not None else getattr(sim_scene, "object_id", None),
+        contact_friction=contact_friction,
     )
     if run_cfg.boundary_conditions or run_cfg.forces:
         try:

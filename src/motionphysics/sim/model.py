@@ -8,6 +8,8 @@ own parameter values, so one scene can mix classes. What changes per substep liv
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -150,6 +152,75 @@ def _check_ranges(ids: np.ndarray, params: dict[str, np.ndarray]) -> None:
     bad("n", ids == 6, params["n"] > 0, "a power-law index n > 0")
 
 
+def stencil_box(domain_lo, dx: float, grid_dims) -> tuple[tuple, tuple]:
+    """The grid's stencil-safe interior ``[lo + 2 dx, lo + (n - 3) dx]`` [m]: a particle at
+    grid coordinate g needs its quadratic stencil ``floor(g - 0.5) + {0,1,2}`` in ``[0, n)``;
+    ``2 <= g <= n - 3`` leaves one spare cell each side."""
+    lo = tuple(float(domain_lo[a]) + 2.0 * dx for a in range(3))
+    hi = tuple(float(domain_lo[a]) + (int(grid_dims[a]) - 3) * dx for a in range(3))
+    return lo, hi
+
+
+def _check_walls(walls: Any, glo, dx: float, dims) -> tuple[tuple, tuple]:
+    lo = np.asarray(walls[0], dtype=np.float64).reshape(3)
+    hi = np.asarray(walls[1], dtype=np.float64).reshape(3)
+    slo, shi = (np.asarray(b) for b in stencil_box(glo, dx, dims))
+    tol = 1e-4 * dx
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
+        raise UserInputError(f"sim.domain: expected finite walls with lo < hi, got {lo}, {hi}")
+    if np.any(lo < slo - tol) or np.any(hi > shi + tol):
+        raise UserInputError(
+            f"sim.domain: walls {lo.tolist()}..{hi.tolist()} must lie at least 2 cells inside "
+            f"the grid {slo.tolist()}..{shi.tolist()} (the solver's padding)"
+        )
+    return tuple(float(a) for a in np.maximum(lo, slo)), tuple(
+        float(a) for a in np.minimum(hi, shi)
+    )
+
+
+def _object_ids(value: Any, count: int) -> tuple[np.ndarray, int]:
+    """Per-particle object indices (int32 (count,)) and the object count."""
+    if value is None:
+        return np.zeros(count, dtype=np.int32), 1
+    if hasattr(value, "detach"):
+        value = value.detach().cpu().numpy()
+    arr = np.asarray(value)
+    if arr.ndim == 0:
+        arr = np.full(count, int(arr))
+    if arr.shape != (count,) or arr.dtype.kind not in "iub":
+        raise UserInputError(
+            f"objects: expected {count} integer object ids, got shape {arr.shape} ({arr.dtype})"
+        )
+    if arr.min() < 0:
+        raise UserInputError("objects: object ids must be >= 0")
+    n = int(arr.max()) + 1
+    if n > MAX_OBJECTS:
+        raise UserInputError(f"objects: at most {MAX_OBJECTS} objects, got {n}")
+    return arr.astype(np.int32), n
+
+
+def per_object(object_id: Any, values: Sequence[Any]) -> Any:
+    """Per-particle array (P,) from one value per object: ``values[object_id[p]]``.
+
+    ``values``: floats / 0-dim tensors, one per object. With torch tensors the result is a
+    differentiable float32 tensor (gradients reach each object's value: what the fit needs
+    for one parameter vector per object); else a float32 ndarray.
+    """
+    if hasattr(object_id, "numpy") and not hasattr(object_id, "detach"):
+        object_id = object_id.numpy()
+    if any(hasattr(v, "detach") for v in values):
+        import torch
+
+        oid = torch.as_tensor(np.asarray(object_id), dtype=torch.long)
+        stacked = torch.stack([torch.as_tensor(v, dtype=torch.float32).reshape(()) for v in values])
+        return stacked[oid]
+    return np.asarray(values, dtype=np.float32)[np.asarray(object_id, dtype=np.int64)]
+
+
+MAX_OBJECTS = 8
+"""Most objects (grid velocity fields) one simulation may have."""
+
+
 @dataclass
 class Model:
     """Static data of one simulation.
@@ -172,6 +243,16 @@ class Model:
         boundary: optional ``sim.boundary.BoundaryProgram`` (hooks called every substep).
         particle_x0: initial particle positions [m], (P, 3) float32 ndarray, or None
             (read by ``BoundaryProgram.from_config`` for its particle selections).
+        walls: the box material may occupy, ``((xlo, ylo, zlo), (xhi, yhi, zhi))`` [m]
+            (``sim.domain``; its faces are walls), or None (legacy: the box
+            ``[lo + 2 dx, lo + (n - 3) dx]``, the stencil-safe interior of the grid). G2P
+            projects particles back onto it, and ``bounding_box`` constrains the grid
+            nodes on or beyond its faces. It must lie within the stencil-safe interior
+            (the solver's padding cells lie outside it). See :attr:`wall_box`.
+        object_id: object index of each particle (0 .. num_objects - 1), shape (P,),
+            dtype int32. Each object has its own grid velocity field and objects meet
+            through the contact of ``sim.contact`` (one object: the single-field solver).
+        contact_friction: Coulomb coefficient between objects [-] (0: frictionless).
     """
 
     device: str
@@ -185,6 +266,10 @@ class Model:
     params: dict[str, Any] = field(default_factory=dict)
     boundary: Any = None
     particle_x0: Any = None
+    walls: Any = None
+    object_id: Any = None
+    num_objects: int = 1
+    contact_friction: float = 0.0
 
     def __getattr__(self, name: str):
         # E, nu, ... read as attributes (Newton style); ``params`` holds them.
@@ -197,6 +282,14 @@ class Model:
     def domain_hi(self) -> tuple[float, float, float]:
         """World position of the last grid node [m]."""
         return tuple(self.domain_lo[a] + (self.grid_dims[a] - 1) * self.dx for a in range(3))
+
+    @property
+    def wall_box(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """``(lo, hi)`` [m] of the box particles are kept in (``walls``, or the legacy box)."""
+        if self.walls is not None:
+            lo, hi = self.walls
+            return tuple(float(a) for a in lo), tuple(float(a) for a in hi)  # type: ignore[return-value]
+        return stencil_box(self.domain_lo, self.dx, self.grid_dims)
 
     @property
     def requires_grad(self) -> bool:
@@ -214,13 +307,19 @@ class Model:
         device: str = "cpu",
         requires_grad: bool = False,
         positions: Any = None,
+        walls: Any = None,
+        object_id: Any = None,
+        contact_friction: float = 0.0,
     ) -> Model:
         """Build a model from rest volumes [m^3] (P,) and a sim-unit material dict.
 
         ``material``: ``'class'`` (name / id / per-particle ids) plus parameters of
         :data:`PARAM_NAMES` as scalars or per-particle arrays/tensors (see
         :func:`material_arrays`). ``positions`` [m] (P, 3): initial positions kept as
-        ``particle_x0`` (needed by boundary programs).
+        ``particle_x0`` (needed by boundary programs). ``walls``: the material box
+        ``(lo (3,), hi (3,))`` [m] (see the class docstring; None: legacy box).
+        ``object_id``: per-particle object index (P,) ints (None: one object);
+        ``contact_friction``: Coulomb coefficient of object-object contact.
         """
         wp = init_warp()
         if hasattr(volumes, "detach"):
@@ -244,10 +343,19 @@ class Model:
             x0 = np.asarray(positions, dtype=np.float32).reshape(-1, 3)
             if x0.shape[0] != count:
                 raise UserInputError(f"scene: {x0.shape[0]} positions for {count} particle volumes")
+        glo = tuple(float(a) for a in np.asarray(domain_lo, dtype=np.float64).reshape(3))
+        wall_pair = None
+        if walls is not None:
+            wall_pair = _check_walls(walls, glo, float(dx), dims)
+        oid, nobj = _object_ids(object_id, count)
+        if not (math.isfinite(float(contact_friction)) and float(contact_friction) >= 0):
+            raise UserInputError(
+                f"sim.contact.friction: expected a finite value >= 0, got {contact_friction}"
+            )
         return cls(
             device=device,
             particle_count=count,
-            domain_lo=tuple(float(a) for a in np.asarray(domain_lo, dtype=np.float64).reshape(3)),
+            domain_lo=glo,
             dx=float(dx),
             grid_dims=dims,  # type: ignore[arg-type]
             gravity=tuple(float(g) for g in np.asarray(gravity, dtype=np.float64).reshape(3)),
@@ -260,6 +368,10 @@ class Model:
                 for name in PARAM_NAMES
             },
             particle_x0=x0,
+            walls=wall_pair,
+            object_id=wp.array(oid, dtype=wp.int32, device=device),
+            num_objects=nobj,
+            contact_friction=float(contact_friction),
         )
 
     def set_param(self, name: str, values: Any) -> None:

@@ -25,7 +25,7 @@ returned (its ``v`` is the initial-velocity gradient).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -36,6 +36,10 @@ from motionphysics.sim.solver import Solver, cfl_number
 from motionphysics.sim.state import State
 
 GradMode = Literal["full", "window", "last_substep"]
+
+WALL_REACH_CELLS = 0.5
+"""Material within this many cells of a domain wall has reached it (walls hold particles
+exactly on them; bodies resting against a wall's grid nodes stay within ~0.5 cell)."""
 
 RUNAWAY_CELLS_PER_SUBSTEP = 1.0
 """A particle faster than this many cells per substep (v dt / dx) means divergence."""
@@ -49,11 +53,18 @@ class RolloutResult:
         xs: positions [m], shape (T, P, 3), float32.
         Fs: deformation gradients [-], shape (T, P, 3, 3), float32.
         vs: velocities [m/s], shape (T, P, 3), float32, or None when not asked for.
+        active: 1 = simulated, 0 = removed by a ``cut`` collider, shape (T, P), float32
+            (removed particles stay where they were removed: renderers hide them).
+        wall_hits: the first frame each domain wall was reached, ``[{"frame": f, "wall":
+            "x-" | "x+" | "y-" | ... }]`` by frame (walls that a collider plane covers,
+            e.g. a floor on the domain's lower face, are not reported).
     """
 
     xs: np.ndarray
     Fs: np.ndarray
     vs: np.ndarray | None = None
+    active: np.ndarray | None = None
+    wall_hits: list = field(default_factory=list)
 
 
 class Rollout:
@@ -140,6 +151,8 @@ class Rollout:
         xs = np.empty((num_frames, p, 3), np.float32)
         Fs = np.empty((num_frames, p, 3, 3), np.float32)
         vs = np.empty((num_frames, p, 3), np.float32) if keep_velocities else None
+        active = np.empty((num_frames, p), np.float32)
+        walls = _WallWatch(self.model)
         self._owner = None
         self._tail = None
         S = self.substeps
@@ -151,8 +164,10 @@ class Rollout:
         def record(f: int, s: State) -> None:
             xs[f] = s.x.numpy()
             Fs[f] = s.F.numpy()
+            active[f] = s.active.numpy()
             if vs is not None:
                 vs[f] = s.v.numpy()
+            walls.check(f, xs[f], active[f])
 
         record(0, a)
         for f in range(1, num_frames):
@@ -173,7 +188,7 @@ class Rollout:
             if keep_checkpoints:
                 self.checkpoints.append(a.clone())
             record(f, a)
-        return RolloutResult(xs, Fs, vs)
+        return RolloutResult(xs, Fs, vs, active, walls.hits)
 
     # ---------------------------------------------------------------- backward
     def _span_bytes(self, n: int, k0: int) -> int:
@@ -349,6 +364,49 @@ class Rollout:
             if k0 == 0:
                 _add_state(adj0, adj)
         return adj0
+
+
+class _WallWatch:
+    """Records the first frame in which active material comes within WALL_REACH_CELLS of
+    each face of the model's material box (``Model.wall_box``), except faces that a
+    collider plane covers (an axis-aligned non-cut ``surface_collider`` facing into the
+    box within half a cell of the face)."""
+
+    NAMES = ("x-", "x+", "y-", "y+", "z-", "z+")
+
+    def __init__(self, model) -> None:
+        lo, hi = model.wall_box
+        self.lo, self.hi = np.asarray(lo), np.asarray(hi)
+        self.reach = WALL_REACH_CELLS * model.dx
+        self.hits: list[dict] = []
+        self.seen: set[str] = set()
+        prog = getattr(model, "boundary", None)
+        for op in getattr(prog, "_plane_ops", ()):
+            n = np.asarray(op.scalars["normal"], dtype=np.float64)
+            q = np.asarray(op.scalars["point"], dtype=np.float64)
+            a = int(np.argmax(np.abs(n)))
+            if abs(abs(n[a]) - 1.0) > 1e-6:
+                continue
+            face, side = (self.lo[a], "-") if n[a] > 0 else (self.hi[a], "+")
+            if abs(q[a] - face) <= 0.5 * model.dx:
+                self.seen.add("xyz"[a] + side)
+
+    def check(self, frame: int, x: np.ndarray, active: np.ndarray) -> None:
+        if len(self.seen) == 6:
+            return
+        live = x[active > 0]
+        if live.size == 0:
+            return
+        lo, hi = live.min(axis=0), live.max(axis=0)
+        for a in range(3):
+            for side, reached in (
+                ("-", lo[a] <= self.lo[a] + self.reach),
+                ("+", hi[a] >= self.hi[a] - self.reach),
+            ):
+                name = "xyz"[a] + side
+                if reached and name not in self.seen:
+                    self.seen.add(name)
+                    self.hits.append({"frame": int(frame), "wall": name})
 
 
 def _to_wp(value: Any, dtype, device: str):

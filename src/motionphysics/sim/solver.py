@@ -77,6 +77,8 @@ class Grid:
     """
 
     velocity: Any
+    """(several objects: the objects' fields stacked along the first axis, shape
+    (num_objects * nx, ny, nz), object o's node i at row i + o * nx; see :attr:`fields`)"""
     mv: Any = None
     offset: tuple[int, int, int] = (0, 0, 0)
     requires_grad: bool = False
@@ -88,6 +90,15 @@ class Grid:
     v_g2p: Any = None
     """Recorded substeps only: the particle velocities G2P gathered [m/s] (P,) vec3, before
     the post-G2P hooks edit ``state_out.v``; read by G2P's adjoint instead of re-gathering."""
+    num_objects: int = 1
+
+    @property
+    def fields(self) -> list:
+        """One (nx, ny, nz) node-velocity array per object (views of :attr:`velocity`)."""
+        if self.num_objects == 1:
+            return [self.velocity]
+        nx = self.velocity.shape[0] // self.num_objects
+        return [self.velocity[o * nx : (o + 1) * nx] for o in range(self.num_objects)]
 
     def zero_grad(self) -> None:
         """Zero the adjoints. ``velocity.grad`` is only ever written on the active region of
@@ -95,7 +106,7 @@ class Grid:
         grid hooks and the grid update work on the region), so only that box is zeroed."""
         g = self.velocity.grad
         if g is not None:
-            if self.mv is None:
+            if self.mv is None or self.num_objects > 1:
                 g.zero_()
             else:
                 wp = init_warp()
@@ -137,7 +148,15 @@ class Solver:
             threads = 2 if (os.cpu_count() or 1) >= 2 else 1
             if model.particle_count < 2 * self.config.min_particles_per_thread:
                 threads = 1
+        self.num_objects = int(getattr(model, "num_objects", 1))
+        # several objects: one chunk (each object scatters into its own region grid)
         self.chunks = 1 if not self.device.is_cpu else max(1, min(2, int(threads)))
+        if self.num_objects > 1:
+            self.chunks = 1
+        oid = getattr(model, "object_id", None)
+        if oid is None:
+            oid = self.wp.zeros(model.particle_count, dtype=self.wp.int32, device=model.device)
+        self._object_id = oid
         p = model.particle_count
         half = (p + 1) // 2
         self._ranges = [(0, p)] if self.chunks == 1 else [(0, half), (half, p - half)]
@@ -148,8 +167,10 @@ class Solver:
         lo = np.asarray(model.domain_lo, dtype=np.float64)
         self._lo = wp.vec3(*lo)
         self._dims = wp.vec3i(*dims)
-        self._x_min = wp.vec3(*(lo + 2.0 * model.dx))
-        self._x_max = wp.vec3(*(lo + (np.asarray(dims) - 3.0) * model.dx))
+        # G2P projects particles onto the material box (the domain walls, Model.wall_box)
+        wall_lo, wall_hi = model.wall_box
+        self._x_min = wp.vec3(*wall_lo)
+        self._x_max = wp.vec3(*wall_hi)
         self._gravity = wp.vec3(*model.gravity)
         self._bounds = wp.zeros(2, dtype=wp.vec3, device=model.device)
         self._R_dummy = None  # R output of the elastic stress when nothing records it
@@ -161,13 +182,14 @@ class Solver:
     def make_grid(self, requires_grad: bool = False) -> Grid:
         """Fresh grid scratch (zeroed); pass one per recorded substep to :meth:`step` under a tape."""
         wp = self.wp
+        nx, ny, nz = self.model.grid_dims
         v = wp.zeros(
-            self.model.grid_dims,
+            (nx * self.num_objects, ny, nz),
             dtype=wp.vec3,
             device=self.model.device,
             requires_grad=requires_grad,
         )
-        return Grid(velocity=v, requires_grad=requires_grad)
+        return Grid(velocity=v, requires_grad=requires_grad, num_objects=self.num_objects)
 
     def _region(self, state: State) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
         """(offset, shape) of the grid nodes the particles' stencils touch (+1 node margin)."""
@@ -288,7 +310,7 @@ class Solver:
     def _region_grid(self, grid: Grid, shape: tuple[int, int, int]):
         """A zeroed (chunks, *shape) vec4 array for ``grid`` (reused when the shape allows)."""
         wp = self.wp
-        full = (self.chunks, *shape)
+        full = (self.chunks * self.num_objects, *shape)
         mv = grid.mv
         if mv is None or tuple(mv.shape) != full or mv.requires_grad != grid.requires_grad:
             # (under a tape every recorded substep has its own Grid, so its own array)
@@ -369,6 +391,8 @@ class Solver:
                 start,
                 chunk,
                 wp_off,
+                self._object_id,
+                self.chunks if self.num_objects > 1 else 0,
             ]
 
         # chunks write disjoint particles and their own private grid: no shared adjoints
@@ -380,16 +404,34 @@ class Solver:
                 _k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine]
             )
         self._p2g(p2g_inputs, affine, mv, state_in)
-        wp.launch(
-            _k._grid_update,
-            dim=shape,
-            inputs=[mv, self.chunks, self._gravity, dt, wp_off],
-            outputs=[grid.velocity],
-            device=m.device,
-        )
+        if self.num_objects == 1:
+            wp.launch(
+                _k._grid_update,
+                dim=shape,
+                inputs=[mv, self.chunks, self._gravity, dt, wp_off],
+                outputs=[grid.velocity],
+                device=m.device,
+            )
+        else:
+            # one field per object, contact between them (kernels._make_contact_update)
+            wp.launch(
+                _k.contact_update_kernel(self.num_objects),
+                dim=shape,
+                inputs=[
+                    mv,
+                    self._gravity,
+                    dt,
+                    wp_off,
+                    int(m.grid_dims[0]),
+                    float(getattr(m, "contact_friction", 0.0)),
+                ],
+                outputs=[grid.velocity],
+                device=m.device,
+            )
         if m.boundary is not None:
             # only the active region is read by G2P: the hooks process just those nodes
-            m.boundary.apply_grid(m, grid.velocity, t, substep, dt, region=(off, shape))
+            for field_v in grid.fields:
+                m.boundary.apply_grid(m, field_v, t, substep, dt, region=(off, shape))
 
         self._g2p(state_in, grid, state_out, dt)
         if m.boundary is not None:
@@ -552,6 +594,8 @@ class Solver:
                 self._x_min,
                 self._x_max,
                 start,
+                self._object_id,
+                int(m.grid_dims[0]) if self.num_objects > 1 else 0,
             ]
 
         outputs = [state_out.x, state_out.v, state_out.C]
