@@ -28,6 +28,7 @@ This module builds and runs components; it writes no files (the run directory is
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -129,74 +130,30 @@ def resolve_material(
 ) -> dict[str, Any]:
     """Combine an estimate (or a params file) with the config's ``material:`` block.
 
-    Precedence per field: config ``material:`` > ``base`` (``--params`` file) >
-    ``estimate``; a field none of them gives (the config changed the class) takes the
-    centre of the class's handbook range. Out-of-range values are clamped into the
-    range and recorded. Returns ``{"material": MaterialParams, "clamps": [...],
-    "sources": {name: str}, "overrides": {...}, "class_override": bool}``.
+    Delegates to :func:`motionphysics.materials.resolve.resolve_material`: precedence per
+    field config ``material:`` > ``base`` (``--params`` file) > ``estimate`` > centre of
+    the class's handbook range; values a person wrote are used as written (one warning
+    line when outside the handbook range), estimates are clamped and tagged. Returns
+    ``{"material", "clamps", "warnings", "range_notes", "sources", "overrides",
+    "class_override"}``.
     """
-    from motionphysics.materials.catalog import MATERIALS, normalise_class, validate
+    from motionphysics.materials.resolve import resolve_material as _resolve
 
-    mat = cfg.material
-    given = mat.overrides()
-    start = base if base is not None else estimate
-    start_name = "params file" if base is not None else (estimate or {}).get("backend", "estimate")
-    if mat.class_ is not None:
-        cls = normalise_class(mat.class_, field="material.class")
-    elif start is not None and start.get("class") is not None:
-        cls = normalise_class(start["class"], field=f"{start_name}.class")
-    else:
-        raise UserInputError(
-            "material.class: missing (give it in the config or pass --params FILE)"
-        )
-    names = MATERIALS[cls].names
-    same_class = (
-        start is not None
-        and start.get("class") is not None
-        and normalise_class(start["class"], field=f"{start_name}.class") == cls
+    return _resolve(
+        cfg.material.class_,
+        cfg.material.overrides(),
+        estimate=estimate,
+        base=base,
+        config_origin="material",
     )
-    if base is not None and same_class:
-        stray = sorted(k for k in (base.get("params") or {}) if k not in names)
-        if stray:
-            raise UserInputError(
-                f"{base.get('origin', 'params file')}: parameter(s) {', '.join(stray)} do not belong "
-                f"to class {cls} (expected {', '.join(names)})"
-            )
-    values: dict[str, float] = {}
-    sources: dict[str, str] = {}
-    extra = sorted(k for k in given if k != "density" and k not in names)
-    if extra:
-        raise UserInputError(
-            f"material: parameter(s) {', '.join(extra)} do not belong to class {cls} "
-            f"(expected {', '.join(names)})"
-        )
-    for name in ("density", *names):
-        if name in given:
-            values[name] = given[name]
-            sources[name] = "config"
-            continue
-        sval = None
-        if start is not None and (same_class or name == "density"):
-            sval = (
-                start.get("density") if name == "density" else (start.get("params") or {}).get(name)
-            )
-        if sval is not None:
-            values[name] = sval
-            sources[name] = start_name
-        else:
-            values[name] = _range_centre(cls, name)
-            sources[name] = f"range centre of {cls}"
-    density = values.pop("density")
-    params, clamps = validate(
-        cls, values, density=density, on_out_of_range="clamp", origin="material"
-    )
-    return {
-        "material": params,
-        "clamps": [c.to_dict() for c in clamps],
-        "sources": sources,
-        "overrides": given,
-        "class_override": mat.class_ is not None and (start is None or not same_class),
-    }
+
+
+def warn(text: str, observer: Observer | None = None) -> None:
+    """A warning about the material or the simulation: always on stderr (``--quiet``
+    never hides it), and to the observer for displays that keep a log."""
+    print(text if text.startswith("warning") else f"warning: {text}", file=sys.stderr)
+    if observer is not None:
+        observer.message("warning", text)
 
 
 def material_complete(cfg: RunConfig) -> bool:
@@ -229,6 +186,8 @@ class SimResolution:
     grid_dims: tuple[int, int, int]
     auto: bool
     """True when ``sim.substeps`` is ``auto`` (an optimiser re-resolves as it moves)."""
+    notes: tuple[str, ...] = ()
+    """Warning lines of the substep plan (the auto cap binding)."""
 
     @property
     def dt(self) -> float:
@@ -314,8 +273,28 @@ def resolve_substeps(cfg: RunConfig, cls: str, values: Mapping[str, Any], dx: fl
 
 
 def resolve_simulation(material, cfg: RunConfig, sim_scene) -> SimResolution:
-    """Map context, simulation values and substeps of ``material`` (MaterialParams)."""
-    ctx = map_context(cfg, sim_scene, float(material.density))
+    """Map context, simulation values and substeps of ``material`` (MaterialParams).
+
+    The count comes from :func:`motionphysics.materials.simmap.plan_substeps`: a fixed
+    ``sim.substeps`` that would make the material behave as another class is refused
+    (one line saying what is needed); under ``auto`` the mapping step is refined until
+    the class is kept (up to a cap, with a note when it binds) and the run's count is the
+    CFL count of the mapped values. ``notes`` of the plan are returned for the caller to
+    print.
+    """
+    from motionphysics.materials.simmap import plan_substeps
+
+    ctx0 = map_context(cfg, sim_scene, float(material.density))
+    plan = plan_substeps(
+        material,
+        cfg.sim.substeps,
+        dx=float(ctx0.dx),
+        frame_dt=float(cfg.sim.frame_dt),
+        length=float(ctx0.length),
+        gravity=float(ctx0.gravity),
+        where="sim.substeps",
+    )
+    ctx = plan.ctx
     phys = {"density": float(material.density), **{k: float(v) for k, v in material.values.items()}}
     values = {k: float(v) for k, v in _floats(sim_values(phys, material.cls, ctx)).items()}
     substeps = resolve_substeps(cfg, material.cls, values, float(sim_scene.dx))
@@ -326,6 +305,7 @@ def resolve_simulation(material, cfg: RunConfig, sim_scene) -> SimResolution:
         frame_dt=float(cfg.sim.frame_dt),
         grid_dims=tuple(int(v) for v in sim_scene.grid_dims),
         auto=cfg.sim.substeps == "auto",
+        notes=tuple(plan.notes),
     )
 
 
@@ -439,7 +419,7 @@ def _fit_radius(corners: np.ndarray, cam, fill: float = 0.9) -> float:
     return hi
 
 
-def resolve_camera(cfg: RunConfig, sim_scene) -> tuple[RunConfig, dict[str, Any]]:
+def resolve_camera(cfg: RunConfig, sim_scene, xs=None) -> tuple[RunConfig, dict[str, Any]]:
     """The run camera; when the config leaves ``radius`` and ``look_at`` unset, frame the scene.
 
     Auto-framing keeps in view the object and, when there is a ground (the highest
@@ -449,12 +429,20 @@ def resolve_camera(cfg: RunConfig, sim_scene) -> tuple[RunConfig, dict[str, Any]
     the image. Without a ground collider the floor of the simulation domain plays the
     ground's part when it is near. Returns the config with the resolved camera written in (so ``run.yaml``
     reproduces the view) and a note for ``params.json``.
+
+    ``xs`` (particle positions [T, P, 3] of a simulated run): frame the whole trajectory
+    (the union of every frame's box), so an object that travels stays in the picture.
     """
     cam = cfg.camera
     explicit = cam.model_fields_set
     if cam.cameras_json or {"radius", "look_at"} & explicit:
         return cfg, {"framing": "config"}
     lo, hi = _object_box(sim_scene)
+    if xs is not None:
+        from motionphysics.render.camera import trajectory_bounds
+
+        t_lo, t_hi = (np.asarray(b, dtype=np.float64) for b in trajectory_bounds(_np(xs)))
+        lo, hi = np.minimum(lo, t_lo), np.maximum(hi, t_hi)
     up = _up(cfg)
     size = float(np.max(hi - lo))
     box_lo, box_hi = lo.copy(), hi.copy()
@@ -462,7 +450,8 @@ def resolve_camera(cfg: RunConfig, sim_scene) -> tuple[RunConfig, dict[str, Any]
     if ground is None and up[2] > 0.99 and np.linalg.norm(cfg.sim.gravity) > 0:
         # No ground collider: a falling object stops at the domain floor; keep it in view
         # when that floor is near (a user-given domain may be far larger than the object).
-        floor = float(_np(sim_scene.domain_lo)[2]) + 2.0 * float(sim_scene.dx)
+        wall_lo = sim_scene.wall_lo if sim_scene.wall_lo is not None else sim_scene.domain_lo
+        floor = float(_np(wall_lo)[2])
         if lo[2] - floor < 3.0 * size:
             ground = floor
     if ground is not None and abs(up[2]) > 0.99:
@@ -482,7 +471,8 @@ def resolve_camera(cfg: RunConfig, sim_scene) -> tuple[RunConfig, dict[str, Any]
     probe = cam.model_copy(update={"look_at": look_at})
     radius = _fit_radius(corners, probe)
     new_cam = cam.model_copy(update={"look_at": look_at, "radius": float(radius)})
-    return cfg.model_copy(update={"camera": new_cam}), {"framing": "auto (object and ground)"}
+    what = "trajectory" if xs is not None else "object"
+    return cfg.model_copy(update={"camera": new_cam}), {"framing": f"auto ({what} and ground)"}
 
 
 def ground_splats(cfg: RunConfig, sim_scene) -> dict[str, Any] | None:
@@ -713,6 +703,17 @@ class Assembly:
         res = resolve_simulation(material, self.cfg, self.sim_scene)
         return replace(self, material=material, resolution=res, _simulation=None)
 
+    def reframe(self, cfg_in: RunConfig, xs) -> Assembly:
+        """The same run with the automatic camera framing the whole trajectory ``xs``
+        [T, P, 3] (unchanged when ``cfg_in``'s camera is explicit)."""
+        from motionphysics.render.camera import camera_from_config
+
+        cfg_cam, note = resolve_camera(cfg_in, self.sim_scene, xs=xs)
+        if note.get("framing") == "config":
+            return self
+        cfg = self.cfg.model_copy(update={"camera": cfg_cam.camera})
+        return replace(self, cfg=cfg, camera=camera_from_config(cfg.camera), camera_note=note)
+
     def to_sim(self, physical: Mapping[str, Any]) -> dict[str, Any]:
         """Physical values (density included; tensors or floats) -> simulation values
         (differentiable; :func:`sim_values` in the resolved map context)."""
@@ -812,8 +813,17 @@ def assemble(
         from motionphysics.scene import load_scene
         from motionphysics.scene.prepare import prepare
 
-        scene = load_scene(cfg.scene.source)
-        sim_scene = prepare(scene, cfg.scene, cfg.sim, list(cfg.boundary_conditions))
+        scene = load_scene(cfg.scene.source, shade=cfg.scene.shade)
+        # The fitted domain leaves room for the motion the config implies; the class is
+        # known here only when the config names it (the estimate needs this scene).
+        sim_scene = prepare(
+            scene,
+            cfg.scene,
+            cfg.sim,
+            list(cfg.boundary_conditions),
+            forces=list(cfg.forces),
+            material_class=cfg.material.class_,
+        )
         observer.message(
             "info",
             f"scene: {sim_scene.splats.num} splats, {int(_np(sim_scene.particles).shape[0])} "
@@ -842,16 +852,28 @@ def assemble(
             est = estimate_material(cfg.prompt, ref_np, init_backend, announce=announce)
             observer.message("info", f"estimate ({init_backend}): {est['class']}")
     with stage("resolve material"):
+        from motionphysics.materials.simmap import mapped_substitutions
+
         res = resolve_material(cfg, est, params_file)
         material = res["material"]
+        for line in res.get("warnings", []):
+            warn(line, observer)
+        if est is not None:
+            for line in (est.get("estimate") or {}).get("warnings", []) or []:
+                warn(line, observer)
         resolution = resolve_simulation(material, cfg, sim_scene)
+        for line in resolution.notes:
+            warn(line, observer)
         backend = "params file" if params_file is not None else est["backend"] if est else "config"
         provenance = {
             "backend": backend,
             "params_file": params_file.get("origin") if params_file is not None else None,
             "raw_answer": est.get("raw") if est else None,
             "estimate": est.get("estimate") if est else None,
-            "clamps": res["clamps"],
+            "clamps": res["clamps"]
+            + [c.to_dict() for c in mapped_substitutions(material, resolution.values)],
+            "warnings": list(res.get("warnings", [])),
+            "range_notes": list(res.get("range_notes", [])),
             "estimate_clamps": est.get("clamps", []) if est else [],
             "overrides": res["overrides"],
             "class_override": res["class_override"],

@@ -48,7 +48,7 @@ def check_run_flags(cfg, given: Mapping[str, Any], command: str = "run") -> list
             f"--loss {given['loss']}: has no effect without a video prior (optimize.prior is "
             "none, so nothing is optimised); add --prior tiny|cogvideox|modelscope, or drop --loss"
         )
-    if given.get("iters") is not None and prior == "none" and cfg.optimize.loss in PRIOR_LOSSES:
+    if given.get("iters") is not None and prior == "none" and not cfg.optimize.losses:
         raise UserInputError(
             f"--iters {given['iters']}: has no effect without a video prior (optimize.prior is "
             "none, so nothing is optimised); add --prior tiny|cogvideox|modelscope"

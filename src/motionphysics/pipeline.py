@@ -40,6 +40,7 @@ from motionphysics.assembly import (  # noqa: F401 - re-exported
     resolve_material,
     resolve_simulation,
     simulate_forward,
+    warn,
 )
 from motionphysics.config import RunConfig
 from motionphysics.errors import UserInputError
@@ -136,6 +137,7 @@ def run_pipeline(
     set_threads()
     _seed_everything(seed)
     writer.begin(cfg, seed=seed, device=device)
+    cfg_in = cfg  # the camera as the person wrote it (auto-framing is redone on the trajectory)
     with writer.guard():
         base = read_params_file(params_file) if params_file is not None else None
         parts = assemble(
@@ -158,7 +160,9 @@ def run_pipeline(
         writer.save_config(cfg)
 
         # ---- optimisation (the refinement stage) --------------------------------------
+        initial_material = None
         if refine and cfg.optimize.iterations > 0:
+            initial_material = material
             writer.state["initial"] = {
                 "params": {k: float(v) for k, v in material.values.items()},
                 "sim": dict(res.values),
@@ -181,11 +185,31 @@ def run_pipeline(
             xs, Fs, vs, substeps = parts.simulate(frames, st)
             writer.state["sim_context"]["substeps"] = substeps
             writer.state["sim_context"]["dt"] = cfg.sim.frame_dt / substeps
+            wall_hits = getattr(getattr(parts.simulation, "last", None), "wall_hits", None)
+            if wall_hits:
+                writer.state["wall_hits"] = list(wall_hits)
+                first = wall_hits[0]
+                warn(
+                    f"material reached the domain wall {first['wall']} at frame {first['frame']}"
+                    " (sim.domain: give more room, or leave it null to fit the motion)",
+                    writer.observer,
+                )
+        # The automatic camera frames the whole trajectory, not only the first frame.
+        parts = parts.reframe(cfg_in, xs)
+        if parts.cfg.camera != cfg.camera:
+            cfg = parts.cfg
+            writer.record_camera(cfg, parts.camera_note, None)
 
         # ---- render --------------------------------------------------------------------
         with writer.stage("render", total=frames) as st:
             video = parts.render(xs, Fs, on_frame=st.advance)
             writer.write_video(video, cfg.sim.frame_dt)
+        if initial_material is not None:
+            # The report shows the initial estimate's motion beside the refined one.
+            with writer.stage("initial video", total=frames) as st:
+                p0 = parts.with_material(initial_material)
+                xs0, Fs0, _, _ = p0.simulate(frames, st)
+                writer.write_video(p0.render(xs0, Fs0), cfg.sim.frame_dt, "video_initial.mp4")
 
         # ---- outputs -------------------------------------------------------------------
         with writer.stage("write outputs"):

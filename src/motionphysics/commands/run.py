@@ -10,6 +10,7 @@ and ``--loss`` come from the registries.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -100,6 +101,7 @@ def _overrides(args) -> dict:
 
 def _main(args) -> int:
     from motionphysics.errors import UserInputError
+    from motionphysics.flags import check_run_flags
     from motionphysics.runconfig import load_run_config
 
     cfg = load_run_config(args.config, _overrides(args))
@@ -111,8 +113,16 @@ def _main(args) -> int:
         )
     if args.iters is not None and args.iters < 0:
         raise UserInputError(f"--iters: expected a count >= 0, got {args.iters}")
+    given = {"loss": args.loss, "iters": args.iters, "prior": args.prior, "init": args.init}
+    for line in check_run_flags(cfg, given, command="run"):
+        print(line, file=sys.stderr)
     return execute(
-        args, cfg, optimise=True, init_backend=args.init, command="run", config_origin=args.config
+        args,
+        cfg,
+        optimise=True,
+        init_backend=args.init or "kb",
+        command="run",
+        config_origin=args.config,
     )
 
 
@@ -131,7 +141,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--init",
         choices=INIT_BACKENDS.names(),
-        default="kb",
+        default=None,
         help="material estimation backend (default: kb, offline)",
     )
     p.add_argument(

@@ -113,6 +113,7 @@ def render_report(
     *,
     prompt: str,
     timings: Mapping[str, float] | None = None,
+    sections: Sequence[str] = (),
     metrics: Mapping[str, Any] | None = None,
     video: str | None = "video.mp4",
     plots: Sequence[str] = (),
@@ -217,6 +218,7 @@ def render_report(
             + ", ".join(f"{e(k)} {e(str(v))}" for k, v in versions.items())
             + "</p>"
         )
+    out.extend(sections)  # extra HTML fragments (the optimisation section)
     out.append("</body></html>")
     return "\n".join(out) + "\n"
 

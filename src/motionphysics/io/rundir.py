@@ -52,6 +52,8 @@ RUN_FILES = (
     "checkpoint.pt",
     "report.html",
     "scene.ply",
+    "video_initial.mp4",
+    "prior_reference.mp4",
 )
 """Files a run writes (the ones ``--force`` may delete)."""
 RUN_DIRS = ("splats", "plots")

@@ -297,11 +297,24 @@ class RunWriter:
         return result
 
     def _report(self) -> None:
-        from motionphysics.io.report import write_report
+        from motionphysics.io.report import optimisation_section_html, write_report
 
+        sections = []
+        if self.state.get("history"):
+            ranges = _ranges(self.state)
+            sections.append(
+                optimisation_section_html(
+                    self.rd.path,
+                    self.state,
+                    ranges=ranges or None,
+                    initial_video="video_initial.mp4",
+                    viewer_command=f"motionphysics view {self.rd.path}",
+                )
+            )
         write_report(
             self.rd,
             self.state,
+            sections=sections,
             prompt=self.state.get("prompt") or "",
             timings=self.state.get("timings"),
             metrics=self.metrics,
@@ -373,13 +386,13 @@ class RunWriter:
             Image.fromarray(img).save(tmp, format="PNG")
         self.add_files(name)
 
-    def write_video(self, video: np.ndarray, frame_dt: float) -> None:
-        """``video.mp4`` from uint8 frames [T, H, W, 3] at 1 / frame_dt fps (1-60)."""
+    def write_video(self, video: np.ndarray, frame_dt: float, name: str = "video.mp4") -> None:
+        """``name`` (default ``video.mp4``) from uint8 frames [T, H, W, 3] at 1 / frame_dt fps."""
         from motionphysics.io.video import write_video
 
-        with self.rd.writing("video.mp4") as tmp:
+        with self.rd.writing(name) as tmp:
             write_video(video, tmp, _fps(frame_dt))
-        self.add_files("video.mp4")
+        self.add_files(name)
 
     def write_trajectory(self, sim_scene, xs, Fs, vs, cfg, density) -> dict[str, np.ndarray]:
         """``trajectory.npz`` (x, t, F, v, masses, volumes, and what re-deforming the
@@ -409,13 +422,30 @@ class RunWriter:
         self.add_files("trajectory.npz")
         return read_trajectory(self.path / "trajectory.npz")
 
-    def write_metrics(self, traj: Mapping[str, np.ndarray]) -> dict[str, Any]:
-        """Physical diagnostics -> ``metrics.json``; the headline values go to params.json."""
-        metrics = write_metrics(self.rd, traj)
+    def write_metrics(
+        self, traj: Mapping[str, np.ndarray], cfg=None, sim_scene=None
+    ) -> dict[str, Any]:
+        """Physical diagnostics -> ``metrics.json``; the headline values go to params.json.
+
+        With ``cfg`` the elastic energy uses the simulated material and heights are
+        measured from the run's ground collider (``metrics.physical``)."""
+        material = None
+        floor = None
+        if self.state.get("class") and self.state.get("sim"):
+            material = {"class": self.state["class"], "sim": self.state["sim"]}
+        if cfg is not None:
+            floor = _floor_height(cfg)
+        metrics = write_metrics(self.rd, traj, material, floor=floor)
         self.metrics = metrics
         self.state["metrics"] = {
             k: metrics[k]
-            for k in ("final_height_ratio", "spread_ratio", "max_displacement")
+            for k in (
+                "final_height_ratio",
+                "final_extent_ratio",
+                "spread_ratio",
+                "max_displacement",
+                "rebound_ratio",
+            )
             if k in metrics
         }
         self.add_files("metrics.json")
@@ -424,7 +454,7 @@ class RunWriter:
     def write_outputs(self, sim_scene, xs, Fs, vs, video, cfg, material) -> dict[str, Any]:
         """trajectory.npz, metrics.json and every plot; returns the metrics."""
         traj = self.write_trajectory(sim_scene, xs, Fs, vs, cfg, material.density)
-        metrics = self.write_metrics(traj)
+        metrics = self.write_metrics(traj, cfg)
         self.write_plots(video, traj, metrics, cfg)
         return metrics
 
@@ -539,11 +569,34 @@ class _ObservedStage:
         self._st.set_total(total)
 
 
-def write_metrics(rd, traj: Mapping[str, np.ndarray]) -> dict[str, Any]:
+def _floor_height(cfg) -> float | None:
+    """Height along up of the run's ground collider (a surface collider facing up), if any."""
+    g = np.asarray(cfg.sim.gravity, dtype=np.float64)
+    if not np.any(g):
+        return None
+    up = -g / np.linalg.norm(g)
+    best = None
+    for bc in cfg.boundary_conditions:
+        if getattr(bc, "type", None) != "surface_collider" or getattr(bc, "mode", None) == "cut":
+            continue
+        n = np.asarray(bc.normal, dtype=np.float64)
+        n = n / (np.linalg.norm(n) or 1.0)
+        if float(n @ up) > 0.99:
+            h = float(np.asarray(bc.point, dtype=np.float64) @ up)
+            best = h if best is None else max(best, h)
+    return best
+
+
+def write_metrics(
+    rd, traj: Mapping[str, np.ndarray], material=None, *, floor: float | None = None
+) -> dict[str, Any]:
     """Physical diagnostics of ``traj`` -> ``metrics.json`` (flat keys; see metrics.physical)."""
     from motionphysics.metrics.physical import physical_metrics
 
-    metrics = {"schema": "motionphysics.metrics/1", **physical_metrics(traj)}
+    metrics = {
+        "schema": "motionphysics.metrics/1",
+        **physical_metrics(dict(traj), material, floor=floor),
+    }
     rd.write_json("metrics.json", metrics)
     return metrics
 
@@ -590,6 +643,10 @@ def _ranges(state: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
 # --------------------------------------------------------------------------------------
 # the summary
 # --------------------------------------------------------------------------------------
+def _mean(v: Any) -> float:
+    return float(v.get("mean")) if isinstance(v, dict) else float(v)
+
+
 def format_value(v: Any) -> str:
     """A number as the summary prints it: ``0.3``, ``1000``, ``1.000e+07`` (mean of a field)."""
     if isinstance(v, dict):
@@ -606,23 +663,46 @@ def summary_text(result: RunResult) -> str:
     p = result.params
     lines = [f"prompt:    {p.get('prompt', '')}"]
     prov = p.get("provenance") or {}
-    lines.append(f"material:  {p.get('class')} (from {prov.get('backend', '?')})")
+    est = prov.get("estimate") or {}
+    how = f"from {prov.get('backend', '?')}"
+    if est.get("confidence") is not None:
+        how += f", confidence {float(est['confidence']):.2f}"
+    if est.get("matched"):
+        how += f", matched {est['matched']!r}"
+    lines.append(f"material:  {p.get('class')} ({how})")
     sim = p.get("sim") or {}
     units = p.get("units") or {}
     initial = (p.get("initial") or {}).get("params") or {}
+    # Simulation values are paired with a physical parameter only when they are the same
+    # quantity (simmap.sim_quantities); the others are listed under their own names.
+    from motionphysics.materials.simmap import sim_quantities
+
+    rows = (
+        sim_quantities(p["class"], {k: _mean(v) for k, v in sim.items()}) if p.get("class") else []
+    )
+    paired = {r["pairs_with"]: r for r in rows if r["pairs_with"]}
     for name, value in {"density": p.get("density"), **(p.get("params") or {})}.items():
         s = f"  {name:<10} {format_value(value):>12} {units.get(name, ''):<6}"
-        if name in sim:
-            s += f"  (simulation: {format_value(sim[name])})"
+        if name in paired:
+            s += f"  (simulation: {format_value(paired[name]['value'])})"
         if name in initial:
             s += f"  start {format_value(initial[name])}"
         src = (prov.get("sources") or {}).get(name)
         if src:
             s += f"  [{src}]"
         lines.append(s)
-    for c in prov.get("clamps") or []:
+    own = [r for r in rows if not r["pairs_with"]]
+    if own:
         lines.append(
-            f"  clamped {c['field']}: {format_value(c['original'])} -> {format_value(c['clamped'])}"
+            "  simulated as: "
+            + ", ".join(f"{r['name']} {format_value(r['value'])} {r['unit']}" for r in own)
+        )
+    for c in prov.get("clamps") or []:
+        kind = c.get("kind", "clamped")
+        src = f" ({c['source']})" if c.get("source") else ""
+        lines.append(
+            f"  {kind} {c['field']}: {format_value(c['original'])} -> "
+            f"{format_value(c['clamped'])}{src}"
         )
     opt = p.get("fit") or p.get("optimise")
     if opt:
@@ -634,7 +714,8 @@ def summary_text(result: RunResult) -> str:
     m = result.metrics or {}
     if m:
         lines.append(
-            f"motion:    final height/initial {m.get('final_height_ratio', float('nan')):.3f}, "
+            "motion:    vertical extent final/initial "
+            f"{m.get('final_extent_ratio', m.get('final_height_ratio', float('nan'))):.3f}, "
             f"spread ratio {m.get('spread_ratio', float('nan')):.3f}, "
             f"max displacement {m.get('max_displacement', float('nan')):.3f} m"
         )

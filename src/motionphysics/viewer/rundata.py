@@ -168,8 +168,15 @@ def _rebuild_splats(path: Path, config, parent: np.ndarray, offset: np.ndarray):
     """Rest splats of a run without scene.ply, prepared again from its run.yaml."""
     from motionphysics.scene import load_scene, prepare
 
-    scene = load_scene(config.scene.source)
-    sim_scene = prepare(scene, config.scene, config.sim, list(config.boundary_conditions))
+    scene = load_scene(config.scene.source, shade=config.scene.shade)
+    sim_scene = prepare(
+        scene,
+        config.scene,
+        config.sim,
+        list(config.boundary_conditions),
+        forces=list(config.forces),
+        material_class=config.material.class_,
+    )
     par = sim_scene.splat_parent.detach().cpu().numpy()
     off = sim_scene.splat_offset.detach().cpu().numpy()
     if (
