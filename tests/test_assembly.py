@@ -75,7 +75,9 @@ def _material_at(problem, material, theta) -> MaterialParams:
     return MaterialParams(material.cls, vals.pop("density"), vals)
 
 
-@pytest.mark.parametrize("substeps", [12, "auto"])
+# 20 fixed substeps: the smallest count here at which every class keeps its class
+# (simmap.plan_substeps refuses plasticine at 12: it would flow under its own weight).
+@pytest.mark.parametrize("substeps", [20, "auto"])
 @pytest.mark.parametrize("name", sorted(MATERIALS))
 def test_simulate_and_fit_forward_are_bit_identical(name, substeps):
     cfg = _cfg(MATERIALS[name], substeps)

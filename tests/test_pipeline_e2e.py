@@ -81,7 +81,9 @@ def test_params_json(run_dir):
     prov = p["provenance"]
     assert prov["backend"] == "kb" and prov["estimate"]["material"]["class"] == "elastic"
     assert prov["sources"] == {"density": "kb", "E": "kb", "nu": "config"}
-    assert prov["overrides"] == {"nu": pytest.approx(0.4)} and prov["clamps"] == []
+    assert prov["overrides"] == {"nu": pytest.approx(0.4)}
+    # Issue 17: the only substitution is the sim map's compression of E, and it is said.
+    assert [(c["field"], c["kind"]) for c in prov["clamps"]] == [("E", "mapped to simulation")]
     assert p["history"] == [] and p["sim_context"]["substeps"] >= 1
     assert {"load scene", "estimate material", "simulate", "render"} <= set(p["timings"])
 
