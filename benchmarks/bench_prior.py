@@ -3,14 +3,14 @@ prediction, backward to the frames) on the recorded architectures with random we
 
     python benchmarks/bench_prior.py --model cogvideox-5b --size tiny [--device cpu] [--json]
 
-The same as ``motionphysics bench prior``; see motionphysics.priors.bench.
+The same as ``motionphysics bench prior``; see motionphysics.optimize.prior_bench.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from motionphysics.priors.bench import MODELS_BENCHED, run_prior_bench
+from motionphysics.optimize.prior_bench import MODELS_BENCHED, run_prior_bench
 
 
 def main() -> None:

@@ -107,7 +107,6 @@ def test_missing_and_malformed_files(tmp_path):
         ({"scene": {"crop": [1, 2]}}, ["scene.crop", "[1, 2]", "6 items"]),
         ({"sim": {"gravity": [0, 0, "down"]}}, ["sim.gravity[2]", "'down'", "a number"]),
         ({"boundary_conditions": [{"type": "glue"}]}, ["boundary_conditions[0].type", "'glue'"]),
-        ({"optimize": {"prior": "cogvideo"}}, ["optimize.prior", "did you mean `cogvideox`?"]),
         ({"material": {"E": -5.0}}, ["material.E", "-5.0", "> 0 Pa", "physically impossible"]),
         ({"material": {"nu": 0.75}}, ["material.nu", "0.75", "nu <= 0.5"]),
         ({"material": {"density": 0}}, ["material.density", "got 0"]),
@@ -126,6 +125,20 @@ def test_every_error_names_file_field_value_and_expectation(data, parts):
     # Union / discriminator tags never appear as if they were keys.
     for tag in ("literal[", "int.", "surface_collider.", "function-after"):
         assert tag not in msg, msg
+
+
+def test_unknown_prior_is_named_with_the_closest_one(tmp_path):
+    # Plug-in names are checked against the registries when a run config is loaded
+    # (runconfig.check_plugins; config.py imports no plug-in package).
+    from motionphysics.runconfig import load_run_config
+
+    p = tmp_path / "cfg.yaml"
+    p.write_text("optimize: {prior: cogvideo}\n")
+    with pytest.raises(UserInputError) as err:
+        load_run_config(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: optimize.prior: got 'cogvideo'") and "\n" not in msg, msg
+    assert "did you mean `cogvideox`?" in msg, msg
 
 
 def test_several_errors_are_counted_in_the_one_line():

@@ -283,6 +283,7 @@ def resolve_simulation(material, cfg: RunConfig, sim_scene) -> SimResolution:
     print.
     """
     from motionphysics.materials.simmap import plan_substeps
+    from motionphysics.sim.solver import auto_substeps
 
     ctx0 = map_context(cfg, sim_scene, float(material.density))
     plan = plan_substeps(
@@ -292,6 +293,7 @@ def resolve_simulation(material, cfg: RunConfig, sim_scene) -> SimResolution:
         frame_dt=float(cfg.sim.frame_dt),
         length=float(ctx0.length),
         gravity=float(ctx0.gravity),
+        cfl_substeps=auto_substeps,
         where="sim.substeps",
     )
     ctx = plan.ctx

@@ -18,20 +18,12 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from motionphysics.classes import MATERIAL_CLASSES  # noqa: F401 - re-exported
 from motionphysics.errors import UserInputError
 
 Vec3 = tuple[float, float, float]
 Box = tuple[Vec3, Vec3]
 
-MATERIAL_CLASSES = (
-    "elastic",
-    "plasticine",
-    "metal",
-    "foam",
-    "sand",
-    "newtonian",
-    "non_newtonian",
-)
 MaterialClassName = Literal[
     "elastic", "plasticine", "metal", "foam", "sand", "newtonian", "non_newtonian"
 ]

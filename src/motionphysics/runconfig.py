@@ -112,9 +112,13 @@ def check_plugins(cfg: RunConfig, origin: str = "<config>") -> None:
     opt = cfg.optimize
     try:
         if opt.prior != "none" and opt.prior not in PRIORS:
-            choices = ", ".join(["none", *PRIORS.names()])
+            import difflib
+
+            names = ["none", *PRIORS.names()]
+            close = difflib.get_close_matches(str(opt.prior), names, n=1)
+            hint = f"; did you mean `{close[0]}`?" if close else ""
             raise UserInputError(
-                f"optimize.prior: unknown video prior {opt.prior!r}; expected one of {choices}"
+                f"optimize.prior: got {opt.prior!r}; expected one of {', '.join(names)}{hint}"
             )
         if opt.losses is None:
             if opt.loss is not None:

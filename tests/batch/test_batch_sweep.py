@@ -227,7 +227,7 @@ def test_dry_run_lists_jobs_and_dirs_and_writes_nothing(tmp_path, capsys):
 
 
 def test_example_sweep_validates():
-    example = Path(__file__).parents[2] / "examples" / "sweep_demo.yaml"
+    example = Path(__file__).parents[2] / "examples" / "sweeps" / "sweep_demo.yaml"
     sw = load_sweep(example)
     assert len(sw.jobs) == 6 and sw.out == Path("runs") / "sweep_demo"
     assert {j.config.scene.source for j in sw.jobs} == {"builtin:bird"}

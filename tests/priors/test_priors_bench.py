@@ -9,7 +9,7 @@ import torch
 pytest.importorskip("diffusers")
 
 from motionphysics.errors import UserInputError  # noqa: E402
-from motionphysics.priors.bench import run_prior_bench  # noqa: E402
+from motionphysics.optimize.prior_bench import run_prior_bench  # noqa: E402
 from motionphysics.priors.configs import MODELS, model_config  # noqa: E402
 
 # Published sizes in millions of parameters (model cards / diffusers docs):

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 
 def _main(args) -> int:
-    from motionphysics.metrics.compare import compare_runs
+    from motionphysics.evaluation.compare import compare_runs
 
     out = compare_runs(args.run_dirs, args.out, labels=args.labels, force=args.force)
     if not args.quiet:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 def _main(args) -> int:
     from motionphysics.metrics.ecms import ECMSConfig
-    from motionphysics.metrics.evaluate import evaluate_run, summary_lines
+    from motionphysics.evaluation.evaluate import evaluate_run, summary_lines
 
     ecfg = ECMSConfig(
         bracketing=args.ecms_bracketing,

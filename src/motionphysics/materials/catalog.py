@@ -35,7 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from motionphysics.config import MATERIAL_CLASSES
+from motionphysics.classes import MATERIAL_CLASSES
 from motionphysics.errors import UserInputError
 
 __all__ = [

@@ -715,7 +715,7 @@ def plan_substeps(
     frame_dt: float,
     length: float,
     gravity: float,
-    cfl_substeps=None,
+    cfl_substeps,
     yield_rule: str = "auto",
     cap: int = MAX_AUTO_SUBSTEPS,
     where: str = "sim.substeps",
@@ -726,8 +726,8 @@ def plan_substeps(
     ``auto``: map with ``dt = frame_dt / max(512, N_class)`` where ``N_class`` is the
     smallest count that keeps the class (at most ``cap``; beyond it the cap is used and
     a note says so), then run the CFL count of the mapped values (``cfl_substeps``:
-    ``(sim_values_with_class, dx, frame_dt) -> int``, default the solver's
-    ``auto_substeps``): the mapping step, not the run's count, fixes the simulated
+    ``(sim_values_with_class, dx, frame_dt) -> int``: the solver's ``auto_substeps``,
+    passed by the caller because materials/ must not import sim/): the mapping step, not the run's count, fixes the simulated
     values, and the CFL count of those values keeps the run stable.
     A fixed count that makes the material leave its class raises
     :class:`~motionphysics.errors.UserInputError`: ``"sim.substeps: with substeps 5 this
@@ -735,8 +735,6 @@ def plan_substeps(
     """
     from motionphysics.errors import UserInputError
 
-    if cfl_substeps is None:
-        from motionphysics.sim.solver import auto_substeps as cfl_substeps
     rho = float(params.density)
     kw = dict(dx=dx, frame_dt=frame_dt, length=length, gravity=gravity, yield_rule=yield_rule)
 

@@ -152,9 +152,9 @@ def compare_runs(
     force: bool = False,
 ) -> Path:
     """Write compare.{mp4,md,html,json} into ``out``; returns ``out``."""
+    from motionphysics.evaluation.evaluate import evaluate_run, read_run_files
     from motionphysics.io.rundir import to_json_text
     from motionphysics.io.video import read_video, write_video
-    from motionphysics.metrics.evaluate import evaluate_run, read_run_files
 
     run_dirs = [Path(p) for p in run_dirs]
     if labels is not None and len(labels) != len(run_dirs):
