@@ -29,6 +29,7 @@ COMMANDS = [
     "fit",
     "eval",
     "init",
+    "prior",
 ]
 
 
