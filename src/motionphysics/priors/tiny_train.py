@@ -65,6 +65,9 @@ class TrainOptions:
     device: str = "cpu"
     size: str = "cpu"
     threads: int | None = None
+    reload_data: bool = False
+    """Re-read DATA at each epoch boundary when shards were added (training while the
+    generator still runs; a resumed run is then exact only if the shards did not change)."""
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -81,13 +84,13 @@ def prepare_dataset(root: str | Path, *, seed: int = 0, held_out: bool = False) 
     from motionphysics.priors.tiny_data import load_shards
 
     frames, measures, specs = load_shards(root)
-    rng = np.random.default_rng([seed, 17])
     texts: list[str] = []
     index: dict[str, int] = {}
     cap_idx = np.zeros((len(specs), CAPTIONS_PER_CLIP), dtype=np.int64)
     groups: list[str | None] = []
     for i, (m, s) in enumerate(zip(measures, specs, strict=True)):
         g = None
+        rng = np.random.default_rng([seed, 17, int(s.get("index", i))])  # per clip
         for k in range(CAPTIONS_PER_CLIP):
             text, g = caption_clip(m, s["cls"], s["shape"], rng, held_out=held_out)
             if text not in index:
@@ -96,16 +99,18 @@ def prepare_dataset(root: str | Path, *, seed: int = 0, held_out: bool = False) 
             cap_idx[i, k] = index[text]
         groups.append(g)
     cache = Path(root) / f"captions-{CAPTIONS_PER_CLIP}-{seed}-{int(held_out)}.pt"
-    tokens = None
-    if cache.exists():
+    known: dict[str, torch.Tensor] = {}
+    if cache.exists():  # texts encoded before (MiniLM is the slow part of loading)
         c = torch.load(cache, weights_only=True)
-        if c.get("texts") == texts:
-            tokens = c["tokens"]
-    if tokens is None:
-        chunks = [text_tokens(texts[i : i + 256]) for i in range(0, len(texts), 256)]
-        tokens = torch.cat(chunks).half()
+        known = dict(zip(c["texts"], c["tokens"], strict=True))
+    new = [t for t in texts if t not in known]
+    for i in range(0, len(new), 256):
+        for t, e in zip(new[i : i + 256], text_tokens(new[i : i + 256]).half(), strict=True):
+            known[t] = e
+    tokens = torch.stack([known[t] for t in texts]) if texts else torch.zeros(0, MAX_TOKENS, 384)
+    if new:
         tmp = cache.with_suffix(".tmp")
-        torch.save({"texts": texts, "tokens": tokens}, tmp)
+        torch.save({"texts": list(known), "tokens": torch.stack(list(known.values()))}, tmp)
         os.replace(tmp, cache)
     return {
         "frames": frames,
@@ -176,6 +181,7 @@ def train(
     device = torch.device(o.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise UserInputError("--device cuda: CUDA is not available in this torch build")
+    n_shards = _n_shards(data)
     ds = prepare_dataset(data, seed=o.seed)
     n = ds["frames"].shape[0]
     if n == 0:
@@ -192,7 +198,9 @@ def train(
         "width": int(W),
         "max_tokens": MAX_TOKENS,
     }
-    net = TinyVideoUNet(**cfg["net"]).to(device)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(o.seed)  # the initial weights depend on the seed only
+        net = TinyVideoUNet(**cfg["net"]).to(device)
     ema = TinyVideoUNet(**cfg["net"]).to(device)
     ema.load_state_dict(net.state_dict())
     for p in ema.parameters():
@@ -279,6 +287,10 @@ def train(
             if state["offset"] + o.batch > n:
                 state["epoch"] += 1
                 state["offset"] = 0
+                if o.reload_data and _n_shards(data) != n_shards:
+                    ds = prepare_dataset(data, seed=o.seed)
+                    n, tokens, n_shards = ds["frames"].shape[0], ds["tokens"], _n_shards(data)
+                    log(f"data reloaded: {n} clips")
                 order = perm(state["epoch"])
             idx = order[state["offset"] : state["offset"] + o.batch]
             state["offset"] += o.batch
@@ -310,7 +322,7 @@ def train(
                     be.copy_(bn)
             state["step"] += 1
             state["elapsed_s"] = base_elapsed + time.perf_counter() - t_start
-            run_loss.append(float(loss))
+            run_loss.append(float(loss.detach()))
             if state["step"] % 50 == 0:
                 rec = {
                     "step": state["step"],
@@ -336,6 +348,10 @@ def train(
             signal.signal(signal.SIGINT, old)
 
 
+def _n_shards(root) -> int:
+    return len(list(Path(root).glob("shard-*[0-9].npz")))
+
+
 def _main_thread() -> bool:
     import threading
 
@@ -357,6 +373,7 @@ def discrimination(
     mode: str = "absolute",
     seed: int = 0,
     max_clips: int | None = None,
+    prompts_per_group: int = 2,
 ) -> dict[str, Any]:
     """Caption discrimination over the motion groups.
 
@@ -383,14 +400,13 @@ def discrimination(
     gaps = []
     ts = torch.tensor(timesteps).repeat_interleave(noise_draws)
     for i, grp, shape in rows:
-        prompts = [
-            group_prompt(gname, shape, k, held_out=held_out) for gname in GROUPS for k in (0, 1)
-        ]
+        ks = range(prompts_per_group)
+        prompts = [group_prompt(gn, shape, k, held_out=held_out) for gn in GROUPS for k in ks]
         emb = text_tokens(prompts + [""]).to(prior.device)
         z0 = prior.encode(torch.from_numpy(frames[i]).float() / 255.0)
         noise = torch.randn((len(ts), *z0.shape[1:]), generator=g).to(prior.device)
         losses = prior.denoising_loss(z0, emb, ts.to(prior.device), noise)
-        per = losses[:-1].reshape(n_g, 2).mean(1)
+        per = losses[:-1].reshape(n_g, prompts_per_group).mean(1)
         if mode == "contrast":
             per = per - losses[-1]
         pred = int(per.argmin())
