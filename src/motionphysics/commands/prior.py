@@ -74,6 +74,7 @@ def _train(args) -> int:
         device=args.device,
         size="cuda" if args.device == "cuda" else "cpu",
         threads=args.threads,
+        reload_data=args.reload_data,
     )
 
     def log(text: str) -> None:
@@ -138,6 +139,11 @@ def register(subparsers) -> None:
     t.add_argument("--resume", action="store_true", help="continue the checkpoint at --out")
     t.add_argument("--out", metavar="PATH", help="checkpoint file (default DATA/tiny_prior.pt)")
     t.add_argument("--eval-data", metavar="DIR", help="held-out shards for the held-out metric")
+    t.add_argument(
+        "--reload-data",
+        action="store_true",
+        help="re-read DATA at epoch boundaries (train while `prior data` still runs)",
+    )
     t.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     t.add_argument("--threads", type=_positive(int), default=None, help="torch CPU threads")
     t.set_defaults(func=_train)
