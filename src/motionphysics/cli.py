@@ -32,6 +32,7 @@ COMMANDS = [
     "init",
     "view",
     "batch",
+    "prior",
 ]
 
 

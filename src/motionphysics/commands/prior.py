@@ -1,0 +1,157 @@
+"""``motionphysics prior data|train|eval``: build the embedded tiny motion prior.
+
+``prior data OUT``   simulate and render training clips (our simulator and renderer)
+                     into uint8 shards under OUT; deterministic per --seed, resumable
+                     (shards already there are kept), parallel over --workers.
+``prior train DATA`` train the tiny text-to-video diffusion prior on those shards for
+                     --budget-min minutes; --resume continues a checkpoint exactly
+                     (weights, EMA, optimiser, RNG, data position).
+``prior eval CKPT DATA``  caption discrimination over the motion groups on held-out
+                     clips with held-out phrasings (prints JSON).
+
+See src/motionphysics/priors/MODEL_CARD.md for the shipped weights.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not v > 0:
+            raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+        return v
+
+    return parse
+
+
+def _data(args) -> int:
+    from motionphysics.priors.tiny_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
+    from motionphysics.progress import Progress
+
+    shapes = HELD_OUT_SHAPES if args.held_out_shapes else TRAIN_SHAPES
+    with Progress(quiet=args.quiet, verbose=args.verbose) as progress:
+        n_shards = None
+        with progress.stage("simulate clips") as st:
+
+            def on_shard(done, total, _n):
+                nonlocal n_shards
+                if n_shards is None:
+                    n_shards = total
+                    st.set_total(total)
+                st.advance()
+
+            meta = generate(
+                args.out,
+                args.clips,
+                workers=args.workers,
+                seed=args.seed,
+                shapes=shapes,
+                on_shard=on_shard,
+            )
+    print(f"{args.out}: {meta['clips']} clips (seed {meta['seed']}, shapes {', '.join(shapes)})")
+    return 0
+
+
+def _train(args) -> int:
+    from pathlib import Path
+
+    from motionphysics.priors.tiny_train import TrainOptions, train
+
+    out = Path(args.out) if args.out else Path(args.data) / "tiny_prior.pt"
+    opts = TrainOptions(
+        budget_min=args.budget_min,
+        max_steps=args.steps,
+        batch=args.batch,
+        seed=args.seed,
+        device=args.device,
+        size="cuda" if args.device == "cuda" else "cpu",
+        threads=args.threads,
+        reload_data=args.reload_data,
+    )
+
+    def log(text: str) -> None:
+        if not args.quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    rec = train(args.data, out, opts, resume=args.resume, eval_data=args.eval_data, log=log)
+    print(json.dumps({"checkpoint": str(out), **rec}))
+    return 0
+
+
+def _eval(args) -> int:
+    import torch
+
+    from motionphysics.priors.tiny import TinyPrior
+    from motionphysics.priors.tiny_data import load_shards
+    from motionphysics.priors.tiny_train import discrimination
+
+    torch.set_num_threads(args.threads or torch.get_num_threads())
+    prior = TinyPrior.from_pretrained(args.checkpoint)
+    frames, measures, specs = load_shards(args.data)
+    res = discrimination(
+        prior,
+        frames,
+        measures,
+        specs,
+        held_out=not args.train_phrasings,
+        max_clips=args.max_clips,
+    )
+    print(json.dumps(res, indent=1))
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "prior",
+        help="build the embedded tiny motion prior (data, train, eval)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="prior_command", metavar="STEP")
+    sub.required = True
+
+    d = sub.add_parser("data", help="simulate and render training clips into shards")
+    d.add_argument("out", metavar="OUT", help="output directory (shards are added/kept)")
+    d.add_argument("--clips", type=_positive(int), default=1000, help="number of clips")
+    d.add_argument("--workers", type=_positive(int), default=1, help="processes")
+    d.add_argument("--seed", type=int, default=0, help="data-set seed")
+    d.add_argument(
+        "--held-out-shapes",
+        action="store_true",
+        help="draw only the held-out shapes (duck, torus, bird_simple): an evaluation set",
+    )
+    d.set_defaults(func=_data)
+
+    t = sub.add_parser("train", help="train the tiny prior on shards")
+    t.add_argument("data", metavar="DATA", help="directory of shards (`prior data`)")
+    t.add_argument("--budget-min", type=_positive(float), default=30.0, help="minutes to train")
+    t.add_argument("--steps", type=_positive(int), default=None, help="stop at this many steps")
+    t.add_argument("--batch", type=_positive(int), default=8)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--resume", action="store_true", help="continue the checkpoint at --out")
+    t.add_argument("--out", metavar="PATH", help="checkpoint file (default DATA/tiny_prior.pt)")
+    t.add_argument("--eval-data", metavar="DIR", help="held-out shards for the held-out metric")
+    t.add_argument(
+        "--reload-data",
+        action="store_true",
+        help="re-read DATA at epoch boundaries (train while `prior data` still runs)",
+    )
+    t.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    t.add_argument("--threads", type=_positive(int), default=None, help="torch CPU threads")
+    t.set_defaults(func=_train)
+
+    e = sub.add_parser("eval", help="caption discrimination on held-out clips")
+    e.add_argument("checkpoint", metavar="CKPT", help="weights file (`prior train`)")
+    e.add_argument("data", metavar="DATA", help="held-out shards")
+    e.add_argument("--max-clips", type=_positive(int), default=None)
+    e.add_argument("--train-phrasings", action="store_true", help="use training phrasings")
+    e.add_argument("--threads", type=_positive(int), default=None)
+    e.set_defaults(func=_eval)

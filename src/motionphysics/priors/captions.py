@@ -1,0 +1,248 @@
+"""Captions of the tiny prior's training clips, written from the MEASURED motion.
+
+:func:`motion_group` puts a clip into one of the eight motion groups from the numbers
+of :func:`~motionphysics.priors.tiny_data.motion_measures` (rebound ratio, height and
+spread ratios, shape change, wobble count, late speed), or into ``None`` when the clip
+satisfies no group's conditions with a margin (those clips are captioned only with
+their object and material nouns and a neutral "falls" phrase, never with a motion
+claim). Each group's rule is a conjunction of inequalities on the measures, and the
+groups exclude one another, so a caption can never say "bounces high" about a clip
+that stayed down, "keeps its shape" about one that flattened, and so on.
+
+Phrasings come in two disjoint sets: ``TRAIN`` (used to caption training clips) and
+``HELD_OUT`` (never used in training: the discrimination measurement uses them).
+Material nouns follow the clip's class (a rubber ball, a lump of clay, honey...),
+object nouns its shape.
+
+This module must not import torch or the simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+__all__ = [
+    "GROUPS",
+    "HELD_OUT",
+    "TRAIN",
+    "caption_clip",
+    "group_prompt",
+    "motion_group",
+    "object_noun",
+]
+
+GROUPS = (
+    "bounces_high",
+    "barely_bounces",
+    "wobbles",
+    "splashes",
+    "oozes",
+    "keeps_shape",
+    "crumbles",
+    "squashes_flat",
+)
+"""The motion groups, in a fixed order (their index is the class label in evaluations)."""
+
+TRAIN: dict[str, tuple[str, ...]] = {
+    "bounces_high": (
+        "bounces high",
+        "bounces back up",
+        "rebounds strongly off the ground",
+        "hits the floor and springs back up",
+        "is springy and bounces",
+        "bounces like a stiff rubber ball",
+    ),
+    "barely_bounces": (
+        "barely bounces",
+        "bounces only a little",
+        "hops slightly after landing",
+        "gives a small bounce and settles",
+        "lands with a weak rebound",
+    ),
+    "wobbles": (
+        "wobbles",
+        "wobbles like jelly",
+        "jiggles after it lands",
+        "squashes and wobbles back",
+        "quivers and oscillates on the ground",
+    ),
+    "splashes": (
+        "splashes and spreads",
+        "splashes and spreads thin",
+        "splashes across the floor",
+        "runs out into a thin puddle",
+        "flows out quickly like water",
+    ),
+    "oozes": (
+        "oozes slowly",
+        "oozes slowly like honey",
+        "flows slowly and thickly",
+        "slumps and creeps outward",
+        "sags and spreads sluggishly",
+    ),
+    "keeps_shape": (
+        "keeps its shape",
+        "stays rigid when it lands",
+        "lands without deforming",
+        "hits the ground and stays intact",
+        "does not deform at all",
+    ),
+    "crumbles": (
+        "crumbles into a heap",
+        "collapses into a pile",
+        "falls apart into a mound of grains",
+        "crumbles and settles in a heap",
+        "breaks down into a loose pile",
+    ),
+    "squashes_flat": (
+        "squashes and stays flat",
+        "flattens and stays squashed",
+        "is squashed permanently",
+        "dents and keeps the dent",
+        "squishes down and does not recover",
+    ),
+}
+
+HELD_OUT: dict[str, tuple[str, ...]] = {
+    "bounces_high": ("jumps right back up after hitting the floor", "is very bouncy"),
+    "barely_bounces": ("bounces just a tiny bit", "rebounds feebly"),
+    "wobbles": ("shakes and jiggles like gelatin", "trembles after the impact"),
+    "splashes": ("splatters and spreads out widely", "spills out flat like a liquid"),
+    "oozes": ("creeps out slowly like syrup", "flows very slowly like thick goo"),
+    "keeps_shape": ("holds its form on impact", "stays perfectly solid"),
+    "crumbles": ("disintegrates into a pile", "falls to pieces in a mound"),
+    "squashes_flat": ("gets flattened and stays that way", "deforms into a flat shape"),
+}
+
+NEUTRAL = ("falls onto the ground", "drops onto the floor", "is dropped")
+"""Phrases for clips no group fits (no motion claim)."""
+
+_MATERIAL = {
+    "elastic": ("rubber", "elastic", "rubbery"),
+    "plasticine": ("clay", "plasticine", "modelling clay"),
+    "metal": ("metal", "steel", "metallic"),
+    "foam": ("foam", "spongy", "sponge"),
+    "sand": ("sand", "sandy", "granular"),
+    "newtonian": ("liquid", "water", "fluid"),
+    "non_newtonian": ("paste", "goo", "slime"),
+}
+
+_OBJECT = {
+    "sphere": ("ball", "sphere"),
+    "cube": ("cube", "block"),
+    "column": ("column", "pillar"),
+    "rod": ("rod", "bar"),
+    "bird": ("bird", "toy bird"),
+    "bird_simple": ("bird", "toy bird"),
+    "compound": ("object", "lump", "shape"),
+    "duck": ("duck", "rubber-duck shape"),
+    "torus": ("ring", "donut"),
+}
+
+
+def object_noun(shape: str, k: int = 0) -> str:
+    """The ``k``-th (cyclic) noun of a shape."""
+    names = _OBJECT.get(shape, ("object",))
+    return names[k % len(names)]
+
+
+def motion_group(m: Mapping[str, float]) -> str | None:
+    """The motion group of a clip from its measures, or None when none fits with a margin.
+
+    ``m``: :func:`~motionphysics.priors.tiny_data.motion_measures` plus ``granular``
+    (1.0 for sand: "crumbles" is the granular word for a collapse). Ratios are over the
+    first frame; ``deform`` is rotation-invariant (distance from the best rigid motion
+    over the object size), so a tumbling rigid object is not read as squashed.
+
+    - flow (``spread > 1.5`` or ``final_height < 0.45``, with ``deform > 0.15``):
+      granular and at rest (``late_speed < 0.05``) -> ``crumbles``; else ``splashes``
+      when it spread wide (``max_spread > 2.0``) and low (``min_height < 0.35``);
+      ``oozes`` when the spread stayed moderate (``spread < 1.9``, ``min_height >
+      0.3``) and it is still creeping (``late_speed > 0.01``);
+    - solids (``spread < 1.5``, not granular): ``bounces_high`` (``rebound > 0.35``,
+      ``deform < 0.05``); ``squashes_flat`` (``deform > 0.06``, ``rebound < 0.1``);
+      ``wobbles`` (``wobble >= 2``, ``max_deform > 0.03``, ``deform < 0.05``,
+      ``rebound <= 0.35``); ``barely_bounces`` (``0.06 < rebound < 0.3``,
+      ``max_deform < 0.03``, ``deform < 0.03``); ``keeps_shape`` (``rebound < 0.04``,
+      ``max_deform < 0.02``).
+    """
+    r = m["rebound"]
+    hf, hmin = m["final_height"], m["min_height"]
+    s, smax = m["spread"], m["max_spread"]
+    d, dmax, w, late = m["deform"], m["max_deform"], m["wobble"], m["late_speed"]
+    granular = bool(m.get("granular", 0.0))
+    if (s > 1.5 or hf < 0.45) and d > 0.15:
+        if granular:
+            return "crumbles" if late < 0.05 else None
+        if smax > 2.0 and hmin < 0.35:
+            return "splashes"
+        if s < 1.9 and hmin > 0.3 and late > 0.01:
+            return "oozes"
+        return None
+    if granular:
+        return "crumbles" if d > 0.1 and late < 0.05 else None
+    if s >= 1.5:
+        return None
+    if r > 0.35 and d < 0.05:
+        return "bounces_high"
+    if d > 0.06 and r < 0.1:
+        return "squashes_flat"
+    if w >= 2 and dmax > 0.03 and d < 0.05 and r <= 0.35:
+        return "wobbles"
+    if 0.06 < r < 0.3 and dmax < 0.03 and d < 0.03:
+        return "barely_bounces"
+    if r < 0.04 and dmax < 0.02:
+        return "keeps_shape"
+    return None
+
+
+def _article(word: str) -> str:
+    return "an" if word[0] in "aeiou" else "a"
+
+
+def caption_clip(
+    measures: Mapping[str, float],
+    cls: str,
+    shape: str,
+    rng: np.random.Generator,
+    *,
+    held_out: bool = False,
+    with_material: bool | None = None,
+) -> tuple[str, str | None]:
+    """One random caption for a clip -> (text, motion group or None).
+
+    ``measures``: :func:`motion_measures` of the clip; ``cls``, ``shape``: its material
+    class and shape; ``held_out`` picks from :data:`HELD_OUT`.
+    """
+    m = dict(measures)
+    m["granular"] = 1.0 if cls == "sand" else 0.0
+    group = motion_group(m)
+    table = HELD_OUT if held_out else TRAIN
+    phrases = table[group] if group is not None else NEUTRAL
+    phrase = phrases[int(rng.integers(len(phrases)))]
+    obj = object_noun(shape, int(rng.integers(4)))
+    if with_material is None:
+        with_material = bool(rng.random() < 0.6)
+    if with_material:
+        mats = _MATERIAL[cls]
+        noun = f"{mats[int(rng.integers(len(mats)))]} {obj}"
+    else:
+        noun = obj
+    form = int(rng.integers(3))
+    if form == 0:
+        text = f"{_article(noun)} {noun} {phrase}"
+    elif form == 1:
+        text = f"the {noun} {phrase}"
+    else:
+        text = f"{_article(noun).capitalize()} {noun} is dropped and {phrase}"
+    return text, group
+
+
+def group_prompt(group: str, shape: str, k: int = 0, *, held_out: bool = True) -> str:
+    """The ``k``-th evaluation prompt of ``group`` for a ``shape`` (no material noun)."""
+    table = HELD_OUT if held_out else TRAIN
+    phrases: Sequence[str] = table[group]
+    obj = object_noun(shape, 0)
+    return f"{_article(obj)} {obj} {phrases[k % len(phrases)]}"

@@ -1,0 +1,151 @@
+"""Caption rules of the tiny prior on hand-made trajectories (a caption never contradicts
+the motion that was measured)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from motionphysics.priors.captions import GROUPS, HELD_OUT, NEUTRAL, TRAIN, caption_clip
+from motionphysics.priors.captions import motion_group as group_of
+from motionphysics.priors.tiny_data import motion_measures
+
+T, DT = 16, 0.05
+RNG = np.random.default_rng(0)
+BODY = RNG.uniform(-0.1, 0.1, (300, 3))  # a 0.2 m blob of particles, centred
+
+
+def _traj(centre_z, scale_xy=None, scale_z=None, rot=None, moving=0.0):
+    """x [T, P, 3] from a centroid height path and per-frame axis scales (shape change)."""
+    xs = []
+    for i in range(T):
+        p = BODY.copy()
+        if rot is not None:
+            a = rot[i]
+            r = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+            p = p @ r.T
+        if scale_xy is not None:
+            p[:, :2] *= scale_xy[i]
+        if scale_z is not None:
+            p[:, 2] *= scale_z[i]
+        p[:, 2] += centre_z[i] - p[:, 2].min() + 0.1 - 0.1  # bottom at centre_z
+        xs.append(p)
+    x = np.stack(xs)
+    v = np.gradient(x, DT, axis=0)
+    if moving:
+        v[-4:] += moving
+    return {"x": x, "v": v, "t": np.arange(T) * DT}
+
+
+def _fall_then(after):
+    """Bottom height: falls 0.3 m in 5 frames, then ``after`` (list of T-5 heights)."""
+    fall = 0.3 * (1 - (np.arange(5) / 5.0) ** 2)
+    return np.concatenate([fall, after])
+
+
+def _group(traj, granular=False):
+    m = motion_measures(traj)
+    m["granular"] = float(granular)
+    return group_of(m), m
+
+
+def test_rigid_high_bounce():
+    up = 0.2 * np.sin(np.linspace(0, np.pi, 11))
+    g, m = _group(_traj(_fall_then(up)))
+    assert m["rebound"] > 0.5 and m["max_deform"] < 1e-6
+    assert g == "bounces_high"
+
+
+def test_rigid_small_hop_barely_bounces():
+    up = 0.045 * np.sin(np.linspace(0, np.pi, 11))
+    g, m = _group(_traj(_fall_then(up)))
+    assert 0.06 < m["rebound"] < 0.3
+    assert g == "barely_bounces"
+
+
+def test_rigid_landing_keeps_shape():
+    g, _ = _group(_traj(_fall_then(np.zeros(11))))
+    assert g == "keeps_shape"
+
+
+def test_tumbling_rigid_object_is_not_squashed():
+    """Rotation changes the vertical extent; the rotation-invariant deformation must not."""
+    rot = np.linspace(0, 1.2, T)
+    g, m = _group(_traj(_fall_then(np.zeros(11)), rot=rot))
+    assert m["max_deform"] < 1e-6
+    assert g == "keeps_shape"
+
+
+def test_permanent_flattening_squashes_flat():
+    sz = np.concatenate([np.ones(5), np.full(11, 0.55)])
+    sxy = 1 / np.sqrt(sz)
+    g, m = _group(_traj(_fall_then(np.zeros(11)), scale_xy=sxy, scale_z=sz))
+    assert m["deform"] > 0.06 and m["spread"] < 1.5
+    assert g == "squashes_flat"
+
+
+def test_decaying_oscillation_wobbles():
+    k = np.arange(11)
+    sz = np.concatenate([np.ones(5), 1 - 0.25 * np.cos(k * 1.6) * np.exp(-k / 6) * (k > 0)])
+    sz[5] = 0.75
+    g, m = _group(_traj(_fall_then(np.zeros(11)), scale_xy=1 / np.sqrt(sz), scale_z=sz))
+    assert m["wobble"] >= 2 and m["deform"] < 0.05
+    assert g == "wobbles"
+
+
+def test_fast_wide_spread_splashes():
+    k = np.arange(11)
+    sz = np.concatenate([np.ones(5), np.maximum(0.12, 1 - k / 3)])
+    sxy = np.concatenate([np.ones(5), np.minimum(3.0, 1 + k)])
+    g, m = _group(_traj(_fall_then(np.zeros(11)), scale_xy=sxy, scale_z=sz))
+    assert m["max_spread"] > 2 and m["min_height"] < 0.35
+    assert g == "splashes"
+
+
+def test_slow_moderate_spread_still_moving_oozes():
+    k = np.arange(11)
+    sz = np.concatenate([np.ones(5), 1 - 0.055 * k])
+    sxy = np.concatenate([np.ones(5), 1 + 0.07 * k])
+    g, m = _group(_traj(_fall_then(np.zeros(11)), scale_xy=sxy, scale_z=sz), granular=False)
+    assert 1.5 < m["spread"] < 1.9 and m["late_speed"] > 0.01
+    assert g == "oozes"
+    # the same motion of sand that has not come to rest is not called a heap
+    g2, _ = _group(_traj(_fall_then(np.zeros(11)), scale_xy=sxy, scale_z=sz, moving=0.2), True)
+    assert g2 is None
+
+
+def test_granular_collapse_at_rest_crumbles():
+    k = np.arange(11)
+    sz = np.concatenate([np.ones(5), np.maximum(0.4, 1 - 0.3 * k)])
+    sxy = np.concatenate([np.ones(5), np.minimum(1.6, 1 + 0.3 * k)])
+    traj = _traj(_fall_then(np.zeros(11)), scale_xy=sxy, scale_z=sz)
+    traj["v"][-5:] = 0.0  # at rest
+    assert _group(traj, granular=True)[0] == "crumbles"
+    # a liquid doing the same is never called a heap
+    assert _group(traj, granular=False)[0] != "crumbles"
+
+
+def test_phrasing_sets_are_disjoint_and_cover_every_group():
+    assert set(TRAIN) == set(HELD_OUT) == set(GROUPS)
+    train = {p for v in TRAIN.values() for p in v}
+    held = {p for v in HELD_OUT.values() for p in v}
+    assert not train & held
+    assert not (train | held) & set(NEUTRAL)
+
+
+@pytest.mark.parametrize("held_out", [False, True])
+def test_caption_uses_only_its_groups_phrases(held_out):
+    table = HELD_OUT if held_out else TRAIN
+    up = 0.2 * np.sin(np.linspace(0, np.pi, 11))
+    m = motion_measures(_traj(_fall_then(up)))
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        text, g = caption_clip(m, "elastic", "sphere", rng, held_out=held_out)
+        assert g == "bounces_high"
+        assert any(text.endswith(p) for p in table["bounces_high"])
+        others = [p for k, v in table.items() if k != "bounces_high" for p in v]
+        assert not any(text.endswith(p) for p in others)
+    # a clip no rule fits gets a neutral phrase (no motion claim)
+    m_none = dict(m, rebound=0.32, deform=0.055)  # between bounce classes and squash
+    text, g = caption_clip(m_none, "elastic", "sphere", rng)
+    assert g is None and any(text.endswith(p) for p in NEUTRAL)
