@@ -268,18 +268,19 @@ def _type_name(tp: Any) -> str:
     if tp is type(None):
         return "null"
     if origin is typing.Literal:
-        return " \\| ".join(str(a) for a in args)
+        return " | ".join(str(a) for a in args)
     if origin in (typing.Union, types.UnionType):
         return " or ".join(_type_name(a) for a in args)
     if origin is tuple:
         if args == (float, float, float):
-            return "[x, y, z]"
-        if len(args) == 2 and all(_type_name(a) == "[x, y, z]" for a in args):
-            return "[[x, y, z], [x, y, z]]"
-        if len(args) == 2 and _type_name(args[0]) == "[x, y, z]" and args[1] is float:
-            return "[[x, y, z], r]"
-        if len(set(args)) == 1:
-            return f"[{', '.join([_type_name(args[0])] * len(args))}]"
+            return "3 numbers"
+        if len(args) == 2 and all(_type_name(a) == "3 numbers" for a in args):
+            return "box [[xmin, ymin, zmin], [xmax, ymax, zmax]]"
+        if len(args) == 2 and _type_name(args[0]) == "3 numbers" and args[1] is float:
+            return "sphere [[x, y, z], r]"
+        if len(set(args)) == 1 and args[0] in (float, int, bool):
+            kind = {float: "numbers", int: "integers", bool: "booleans"}[args[0]]
+            return f"{len(args)} {kind}"
         return "[" + ", ".join(_type_name(a) for a in args) + "]"
     if origin is list:
         inner = _type_name(args[0]) if args else "any"
@@ -375,10 +376,10 @@ def config_reference() -> str:
 
     lines: list[str] = []
     top = RunConfig.model_fields
-    scalars = [n for n, f in top.items() if not _is_section(f.annotation)]
+    scalars = [n for n, f in top.items() if not _is_section(f.annotation) and not _is_list_of_kinds(f.annotation)]
     for name, f in top.items():
         ann = f.annotation
-        if typing.get_origin(ann) is list and _union_members(ann):
+        if _is_list_of_kinds(ann):
             lines += [f"##### `{name}` (a list; each entry's `type` picks one kind)", ""]
             for m in _union_members(ann):
                 doc = plain(inspect.getdoc(m) or "") if m.__doc__ else ""
@@ -396,6 +397,10 @@ def config_reference() -> str:
     lines += ["##### top level", ""]
     lines += model_table(_subset(RunConfig, scalars))
     return "\n".join(lines).rstrip("\n")
+
+
+def _is_list_of_kinds(ann: Any) -> bool:
+    return typing.get_origin(ann) is list and bool(_union_members(ann))
 
 
 def _is_section(ann: Any) -> bool:
