@@ -473,7 +473,7 @@ BLOCKS = {
 """Generated README blocks by name (the name in the BEGIN/END markers)."""
 
 _BLOCK = re.compile(
-    r"(<!-- BEGIN GENERATED: (?P<name>\w+)[^>]*-->\n)(?P<body>.*?)(\n<!-- END GENERATED: (?P=name) -->)",
+    r"(<!-- BEGIN GENERATED: (?P<name>\w+)[^>]*-->)\n(?P<body>.*?)\n?(<!-- END GENERATED: (?P=name) -->)",
     re.S,
 )
 
@@ -488,7 +488,7 @@ def render_blocks(text: str, names: list[str] | None = None) -> str:
             return m.group(0)
         if name not in cache:
             cache[name] = BLOCKS[name]()
-        return m.group(1) + cache[name] + m.group(4)
+        return f"{m.group(1)}\n{cache[name]}\n{m.group(4)}"
 
     return _BLOCK.sub(sub, text)
 
