@@ -376,7 +376,11 @@ def config_reference() -> str:
 
     lines: list[str] = []
     top = RunConfig.model_fields
-    scalars = [n for n, f in top.items() if not _is_section(f.annotation) and not _is_list_of_kinds(f.annotation)]
+    scalars = [
+        n
+        for n, f in top.items()
+        if not _is_section(f.annotation) and not _is_list_of_kinds(f.annotation)
+    ]
     for name, f in top.items():
         ann = f.annotation
         if _is_list_of_kinds(ann):
