@@ -186,6 +186,8 @@ class _BCBase(TimeWindow):
 
 
 class ClampGrid(_BCBase):
+    """Grid nodes inside a box get an imposed velocity (e.g. a held end)."""
+
     type: Literal["clamp_grid"]
     box: Box
     """Region [m] whose grid nodes are clamped."""
@@ -196,6 +198,8 @@ class ClampGrid(_BCBase):
 
 
 class BoundingBox(_BCBase):
+    """Walls on the faces of the simulation domain."""
+
     type: Literal["bounding_box"]
     friction: float = Field(0.0, ge=0)
     """Coulomb friction on the domain walls (0: slip)."""
@@ -204,6 +208,8 @@ class BoundingBox(_BCBase):
 
 
 class SurfaceCollider(_BCBase):
+    """An infinite plane (the ground, a wall, a table) or a cutting plane."""
+
     type: Literal["surface_collider"]
     point: Vec3 = (0.0, 0.0, 0.0)
     """A point on the plane [m]."""
@@ -255,12 +261,16 @@ class _ForceBase(TimeWindow):
 
 
 class AddConstantForce(_ForceBase):
+    """A constant acceleration on the selected particles during the window."""
+
     type: Literal["add_constant_force"]
     force: Vec3
     """Body force per unit mass [m/s^2] (an acceleration) on the selected particles."""
 
 
 class AddImpulse(_ForceBase):
+    """A sudden velocity change of the selected particles (a push, a hit)."""
+
     type: Literal["add_impulse"]
     force: Vec3
     """Velocity change [m/s] of the selected particles (an impulse per unit mass), delivered
@@ -269,6 +279,8 @@ class AddImpulse(_ForceBase):
 
 
 class ForceParticlesTranslation(_ForceBase):
+    """The selected particles move with an imposed velocity during the window."""
+
     type: Literal["force_particles_translation"]
     velocity: Vec3
     """Velocity [m/s] imposed on the selected particles during the window."""
@@ -277,6 +289,8 @@ class ForceParticlesTranslation(_ForceBase):
 
 
 class ForceParticlesRotation(_ForceBase):
+    """The selected particles rotate about an axis during the window."""
+
     type: Literal["force_particles_rotation"]
     center: Vec3
     """Point on the rotation axis [m]."""
@@ -287,6 +301,8 @@ class ForceParticlesRotation(_ForceBase):
 
 
 class ReleaseParticles(_ForceBase):
+    """The selected particles are held, then released layer by layer."""
+
     type: Literal["release_particles"]
     layers: int = Field(1, ge=1)
     """Selected particles are frozen (held in place, v = 0) from t = 0 and released in this

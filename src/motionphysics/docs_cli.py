@@ -384,21 +384,21 @@ def config_reference() -> str:
     for name, f in top.items():
         ann = f.annotation
         if _is_list_of_kinds(ann):
-            lines += [f"##### `{name}` (a list; each entry's `type` picks one kind)", ""]
+            lines += [f"#### `{name}` (a list; each entry's `type` picks one kind)", ""]
             for m in _union_members(ann):
                 doc = plain(inspect.getdoc(m) or "") if m.__doc__ else ""
-                lines += [f"`{name}: - type: {_tag(m)}`" + (f": {doc}" if doc else ""), ""]
+                lines += [f"`{{type: {_tag(m)}}}`" + (f": {cell(doc)}" if doc else ""), ""]
                 lines += model_table(m)
                 lines.append("")
         elif _is_section(ann):
             model = ann
-            lines += [f"##### `{name}`", ""]
+            lines += [f"#### `{name}`", ""]
             doc = model.__doc__ and inspect.getdoc(model)
             if doc and not doc.startswith(model.__name__):
                 lines += [plain(doc), ""]
             lines += model_table(model, prefix=f"{name}.")
             lines.append("")
-    lines += ["##### top level", ""]
+    lines += ["#### top level", ""]
     lines += model_table(_subset(RunConfig, scalars))
     return "\n".join(lines).rstrip("\n")
 
@@ -457,7 +457,7 @@ def loss_reference() -> str:
     lines.append("")
     for name, cls in classes.items():
         opts = getattr(cls, "Options", None)
-        lines.append(f"##### `{{type: {name}}}` options")
+        lines.append(f"#### `{{type: {name}}}` options")
         lines.append("")
         if opts is None or not opts.model_fields:
             lines += ["No options besides `weight`.", ""]
@@ -492,7 +492,7 @@ def render_blocks(text: str, names: list[str] | None = None) -> str:
             return m.group(0)
         if name not in cache:
             cache[name] = BLOCKS[name]()
-        return f"{m.group(1)}\n{cache[name]}\n{m.group(4)}"
+        return f"{m.group(1)}\n\n{cache[name]}\n\n{m.group(4)}"
 
     return _BLOCK.sub(sub, text)
 
