@@ -428,3 +428,15 @@ def test_reference_check_catches_a_missing_file(tmp_path):
         "examples/no_such.yaml",
         "research/priors-brief.md",
     }, bad
+
+
+def test_the_readme_example_config_loads(tmp_path):
+    """The Config reference's YAML example is a valid run config (keys, values, plug-ins)."""
+    from motionphysics.runconfig import load_run_config
+
+    m = re.search(r"```yaml\n(.*?)```", section(readme(), "Config reference"), re.S)
+    assert m, "the Config reference has a YAML example"
+    path = tmp_path / "example.yaml"
+    path.write_text(m.group(1), encoding="utf-8")
+    cfg = load_run_config(str(path), {})
+    assert cfg.material.class_ == "elastic" and cfg.optimize.loss_specs()[0].type == "lmd"

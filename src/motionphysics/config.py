@@ -327,9 +327,11 @@ class CameraConfig(_Strict):
     elevation: float = 20.0
     """Elevation [degrees] above the horizontal plane."""
     radius: float = Field(2.5, gt=0)
-    """Distance from look_at [m]."""
+    """Distance from look_at [m]. With neither ``radius`` nor ``look_at`` given (and no
+    ``cameras_json``) the camera frames the object and the ground below it automatically
+    and ``run.yaml`` records the radius it chose."""
     look_at: Vec3 = (0.0, 0.0, 0.3)
-    """Point the camera looks at [m]."""
+    """Point the camera looks at [m] (see ``radius``: left out, it is chosen by the framing)."""
     fov: float = Field(45.0, gt=1, lt=179)
     """Vertical field of view [degrees]."""
     width: int = Field(256, ge=8, le=4096)
