@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import argparse
 import ast
+import functools
 import inspect
 import re
 import sys
-import textwrap
 import types
 import typing
 from pathlib import Path
@@ -230,20 +230,44 @@ def field_docs(model: type) -> dict[str, str]:
     for klass in reversed(model.__mro__):
         if klass is object or not klass.__module__.startswith("motionphysics"):
             continue
-        try:
-            src = textwrap.dedent(inspect.getsource(klass))
-        except (OSError, TypeError):
+        docs.update(_module_docs(klass.__module__).get(klass.__qualname__, {}))
+    return docs
+
+
+@functools.cache
+def _module_docs(module: str) -> dict[str, dict[str, str]]:
+    """``{class qualname: {attribute: docstring}}`` of every class in ``module``'s source
+    (parsed once; ``inspect.getsource`` per class is slow)."""
+    try:
+        src = inspect.getsource(sys.modules[module])
+    except (KeyError, OSError, TypeError):
+        return {}
+    out: dict[str, dict[str, str]] = {}
+
+    def walk(body, prefix):
+        for node in body:
+            if isinstance(node, ast.ClassDef):
+                qual = f"{prefix}{node.name}"
+                out[qual] = _attribute_docs(node.body)
+                walk(node.body, qual + ".")
+            elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                walk(node.body, f"{prefix}{node.name}.<locals>.")
+
+    walk(ast.parse(src).body, "")
+    return out
+
+
+def _attribute_docs(body) -> dict[str, str]:
+    docs = {}
+    for stmt, nxt in zip(body, [*body[1:], None], strict=True):
+        if not (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)):
             continue
-        body = ast.parse(src).body[0].body
-        for stmt, nxt in zip(body, [*body[1:], None], strict=True):
-            if not (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)):
-                continue
-            if (
-                isinstance(nxt, ast.Expr)
-                and isinstance(nxt.value, ast.Constant)
-                and isinstance(nxt.value.value, str)
-            ):
-                docs[stmt.target.id] = inspect.cleandoc(nxt.value.value)
+        if (
+            isinstance(nxt, ast.Expr)
+            and isinstance(nxt.value, ast.Constant)
+            and isinstance(nxt.value.value, str)
+        ):
+            docs[stmt.target.id] = inspect.cleandoc(nxt.value.value)
     return docs
 
 
