@@ -69,8 +69,9 @@ class MaterialConfig(_Strict):
     """Given fields override the estimate from the prompt."""
 
     class_: MaterialClassName | None = Field(None, alias="class")
+    """Material class (null: estimated from the prompt)."""
     density: float | None = Field(None, gt=0)
-    """kg/m^3."""
+    """Density [kg/m^3]."""
     E: float | None = None
     """Young's modulus [Pa]."""
     nu: float | None = None
@@ -140,7 +141,7 @@ class SimConfig(_Strict):
     frames: int = Field(48, ge=1)
     """Output frames (frame 0 is the initial state)."""
     frame_dt: float = Field(0.04, gt=0)
-    """Seconds between output frames."""
+    """Time between output frames [s] (the video plays at 1 / frame_dt frames per second)."""
     substeps: int | Literal["auto"] = 64
     """Substeps per frame, or ``auto`` (from the CFL condition of the stiffest material)."""
     gravity: Vec3 = (0.0, 0.0, -9.8)
@@ -169,6 +170,7 @@ class TimeWindow(_Strict):
     end: float = 1.0e9
     """End time [s] (or substep index when ``unit: substeps``)."""
     unit: Literal["seconds", "substeps"] = "seconds"
+    """What ``start`` and ``end`` count: seconds of simulated time or substeps."""
 
 
 class _BCBase(TimeWindow):
@@ -176,6 +178,8 @@ class _BCBase(TimeWindow):
 
 
 class ClampGrid(_BCBase):
+    """Grid nodes inside a box get an imposed velocity (e.g. a held end)."""
+
     type: Literal["clamp_grid"]
     box: Box
     """Region [m] whose grid nodes are clamped."""
@@ -186,6 +190,8 @@ class ClampGrid(_BCBase):
 
 
 class BoundingBox(_BCBase):
+    """Walls on the faces of the simulation domain."""
+
     type: Literal["bounding_box"]
     friction: float = Field(0.0, ge=0)
     """Coulomb friction on the domain walls (0: slip)."""
@@ -194,12 +200,17 @@ class BoundingBox(_BCBase):
 
 
 class SurfaceCollider(_BCBase):
+    """An infinite plane (the ground, a wall, a table) or a cutting plane."""
+
     type: Literal["surface_collider"]
     point: Vec3 = (0.0, 0.0, 0.0)
     """A point on the plane [m]."""
     normal: Vec3 = (0.0, 0.0, 1.0)
     """Plane normal, pointing into the free side."""
     mode: Literal["sticky", "slip", "frictional", "cut"] = "frictional"
+    """``sticky`` (grid velocity set to zero at the plane), ``slip`` (the velocity into the
+    plane removed), ``frictional`` (slip with Coulomb friction), ``cut`` (material in the
+    region removed, its velocity damped)."""
     friction: float | None = Field(None, ge=0)
     """Coulomb friction coefficient of the frictional mode (absent: 0.3); must be 0 or
     absent with sticky (null in a resolved config means absent)."""
@@ -242,12 +253,16 @@ class _ForceBase(TimeWindow):
 
 
 class AddConstantForce(_ForceBase):
+    """A constant acceleration on the selected particles during the window."""
+
     type: Literal["add_constant_force"]
     force: Vec3
     """Body force per unit mass [m/s^2] (an acceleration) on the selected particles."""
 
 
 class AddImpulse(_ForceBase):
+    """A sudden velocity change of the selected particles (a push, a hit)."""
+
     type: Literal["add_impulse"]
     force: Vec3
     """Velocity change [m/s] of the selected particles (an impulse per unit mass), delivered
@@ -256,13 +271,18 @@ class AddImpulse(_ForceBase):
 
 
 class ForceParticlesTranslation(_ForceBase):
+    """The selected particles move with an imposed velocity during the window."""
+
     type: Literal["force_particles_translation"]
     velocity: Vec3
     """Velocity [m/s] imposed on the selected particles during the window."""
     axis: tuple[bool, bool, bool] = (True, True, True)
+    """Which velocity components are imposed."""
 
 
 class ForceParticlesRotation(_ForceBase):
+    """The selected particles rotate about an axis during the window."""
+
     type: Literal["force_particles_rotation"]
     center: Vec3
     """Point on the rotation axis [m]."""
@@ -273,6 +293,8 @@ class ForceParticlesRotation(_ForceBase):
 
 
 class ReleaseParticles(_ForceBase):
+    """The selected particles are held, then released layer by layer."""
+
     type: Literal["release_particles"]
     layers: int = Field(1, ge=1)
     """Selected particles are frozen (held in place, v = 0) from t = 0 and released in this
@@ -293,21 +315,27 @@ Force = Annotated[
 
 class CameraConfig(_Strict):
     azimuth: float = 30.0
-    """Degrees, counter-clockwise from +x about the up axis."""
+    """Azimuth [degrees], counter-clockwise from +x about the up axis."""
     elevation: float = 20.0
-    """Degrees above the horizontal plane."""
+    """Elevation [degrees] above the horizontal plane."""
     radius: float = Field(2.5, gt=0)
-    """Distance from look_at [m]."""
+    """Distance from look_at [m]. With neither ``radius`` nor ``look_at`` given (and no
+    ``cameras_json``) the camera frames the object and the ground below it automatically
+    and ``run.yaml`` records the radius it chose."""
     look_at: Vec3 = (0.0, 0.0, 0.3)
+    """Point the camera looks at [m] (see ``radius``: left out, it is chosen by the framing)."""
     fov: float = Field(45.0, gt=1, lt=179)
     """Vertical field of view [degrees]."""
     width: int = Field(256, ge=8, le=4096)
+    """Image width [px]."""
     height: int = Field(256, ge=8, le=4096)
+    """Image height [px]."""
     background: Vec3 = (1.0, 1.0, 1.0)
     """RGB in [0, 1]."""
     cameras_json: str | None = None
     """Optional INRIA cameras.json; with it, ``camera_index`` picks the view."""
     camera_index: int = 0
+    """Which camera of ``cameras_json`` is used."""
     show_ground: bool = True
     """Draw the ground (the highest upward-facing surface collider) as a grey checker floor
     in the video and the reference image; render only, never simulated."""
@@ -346,18 +374,22 @@ class OptimizeConfig(_Strict):
     """Model directory of the prior (``save_pretrained`` layout); None: the prior's default."""
     loss: str | None = None
     """Short form of ``losses: [{type: NAME}]``: a loss of the ``LOSSES`` registry
-    (None: :data:`DEFAULT_LOSS`, learnable motion distillation, checked when used)."""
+    (null: ``lmd``, learnable motion distillation, checked when used)."""
     losses: list[LossSpec] | None = None
     """Weighted losses, ``[{type: NAME, weight: W, ...options}]``; wins over ``loss``."""
     guidance: float = Field(7.5, ge=0)
     """Classifier-free guidance scale of the prior."""
     iterations: int = Field(40, ge=0)
+    """Optimisation iterations (0: none)."""
     boost: int = Field(8, ge=1)
     """Frame boosting: number M of interleaved subsequences."""
     grad_mode: Literal["full", "window", "last_substep"] = "full"
+    """Gradients through every substep (``full``, checkpointed), the last ``window``
+    substeps before each supervised frame, or only the last substep."""
     window: int = Field(8, ge=1)
     """Substeps before each supervised frame that gradients flow through (grad_mode: window)."""
     seed: int = 0
+    """Seed of the optimisation's random draws (diffusion steps, noise, subsequences)."""
     lr: float = Field(0.05, gt=0)
     """Adam learning rate on the unconstrained vector theta."""
     lr_per_param: dict[str, float] = {}
@@ -405,6 +437,7 @@ class OptimizeConfig(_Strict):
 class RunConfig(_Strict):
     scene: SceneConfig = SceneConfig()
     prompt: str = "An elastic ball hits the ground and bounces back."
+    """Text prompt: the material is estimated from it, a prior is guided by it."""
     material: MaterialConfig = MaterialConfig()
     sim: SimConfig = SimConfig()
     boundary_conditions: list[BoundaryCondition] = []
@@ -412,6 +445,7 @@ class RunConfig(_Strict):
     camera: CameraConfig = CameraConfig()
     optimize: OptimizeConfig = OptimizeConfig()
     device: Literal["cpu", "cuda"] = "cpu"
+    """Where to simulate and render."""
     export_ply: bool = False
     """Write INRIA-format splats per frame to ``splats/``."""
     versions: dict[str, str] = {}

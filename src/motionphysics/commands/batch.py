@@ -1,4 +1,4 @@
-"""``motionphysics batch SWEEP.yaml``: a sweep of runs (axes over config keys) on a local pool or Ray.
+"""motionphysics batch SWEEP.yaml: a sweep of runs (axes over config keys) on a local pool or Ray.
 
 Every job is an ordinary run directory under ``OUT/jobs/<job-id>/``; ``OUT/results.csv``
 and ``OUT/results.html`` hold one row per job. Running the same sweep again skips

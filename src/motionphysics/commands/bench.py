@@ -16,7 +16,13 @@ BENCH_TARGETS = [
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("bench", help="speed benchmarks (render, ...)", description=__doc__)
+    p = subparsers.add_parser(
+        "bench",
+        help="speed benchmarks (render, mpm)",
+        description="Speed benchmarks of the renderer and the simulator on standard scenes. "
+        "Each target prints its timings (--json: one JSON object); BENCHMARKS.md lists the "
+        "figures with the commands that produced them.",
+    )
     sub = p.add_subparsers(dest="target", metavar="TARGET")
     sub.required = True
     for name in BENCH_TARGETS:

@@ -1,4 +1,4 @@
-"""``motionphysics compare RUN_DIR... --out DIR``: side-by-side videos and a metrics table.
+"""motionphysics compare RUN_DIR... --out DIR: side-by-side videos and a metrics table.
 
 Writes ``DIR/compare.mp4`` (every run's video in a labelled grid, same frame count:
 shorter videos hold their last frame), ``DIR/compare.md`` and ``DIR/compare.html``

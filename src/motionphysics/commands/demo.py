@@ -1,4 +1,4 @@
-"""``motionphysics demo``: the main job on a bundled scene with embedded defaults.
+"""motionphysics demo: the main job on a bundled scene with embedded defaults.
 
 The demo's config is an ordinary run config, ``examples/demo.yaml`` (a copy ships in
 the package as ``motionphysics/commands/demo.yaml`` so an installed package finds it):

@@ -1,4 +1,4 @@
-"""``motionphysics eval RUN_DIR``: (re)compute ``metrics.json`` from a run's files.
+"""motionphysics eval RUN_DIR: (re)compute metrics.json from a run's files.
 
 ECMS (optical flow of video.mp4), CLIPSIM and OC (when their local weights are given;
 null with the reason otherwise), motion adherence of the prompt (or of ``--prompt``)

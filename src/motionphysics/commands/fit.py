@@ -1,4 +1,4 @@
-"""``motionphysics fit CONFIG --reference VIDEO_OR_NPZ``: system identification.
+"""motionphysics fit CONFIG --reference VIDEO_OR_NPZ: system identification.
 
 Recovers the material parameters that reproduce a reference (a video from the config's
 camera, or a ``trajectory.npz`` of ``simulate``) by differentiable simulation, starting

@@ -1,4 +1,4 @@
-"""``motionphysics run CONFIG``: the main job (scene -> material from the prompt -> simulate -> render).
+"""motionphysics run CONFIG: the main job (scene -> material from the prompt -> simulate -> render).
 
 Writes the run directory (README, "Run directory"). With ``--prior none`` (the
 default) and no ``optimize.losses`` no optimisation happens; otherwise the refinement

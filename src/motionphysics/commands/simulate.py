@@ -1,4 +1,4 @@
-"""``motionphysics simulate CONFIG``: forward simulation only, no optimisation.
+"""motionphysics simulate CONFIG: forward simulation only, no optimisation.
 
 The material comes from ``--params FILE`` (a ``params.json`` of an earlier run, or a
 plain ``{"class", "density", "params"}``) and the config's ``material:`` block (which

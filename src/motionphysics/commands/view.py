@@ -1,4 +1,4 @@
-"""``motionphysics view RUN_DIR [RUN_DIR ...]``: a web viewer of the deformed splats over time.
+"""motionphysics view RUN_DIR [RUN_DIR ...]: a web viewer of the deformed splats over time.
 
 Serves the runs with viser (the ``viewer`` extra) at http://HOST:PORT (127.0.0.1 by
 default): a frame slider, play / pause and speed, the ground and colliders, the run's

@@ -1,7 +1,7 @@
 """Evaluate one run directory from its files: what ``motionphysics eval`` writes.
 
-Reads only the files of DESIGN.md's run directory (``run.yaml``, ``params.json``,
-``trajectory.npz``, ``video.mp4``), each optional except the trajectory, so a run made
+Reads only the files of a run directory (README.md, "Run directory": ``run.yaml``,
+``params.json``, ``trajectory.npz``, ``video.mp4``), each optional except the trajectory, so a run made
 by another tool evaluates the same way. Nothing here imports the pipeline.
 
 ``metrics.json`` keys (beside the physical diagnostics of ``metrics.physical``):

@@ -36,7 +36,7 @@ the paper and offers the code's choice as an option:
 ``form: classifier_score`` replaces x̂0 in the target by ``z0 + (x̂0 − x̂0_uncond)``: only
 the guided difference ``g (x̂0_c − x̂0_u)`` remains, so the part of the signal that
 rewards clips that are merely easy to denoise (a prototype found the absolute loss pulls
-every prompt toward "less motion", ``research/prior-prototype.md``) cancels; with g = 0
+every prompt toward "less motion": static, flattened clips are easier to denoise) cancels; with g = 0
 the loss is flat. This is an option, not the paper's loss. Measured with an exact
 (Gaussian, Bayes-optimal) prior in ``benchmarks/lmd_forms.py`` -- prompt mode m = 1,
 unconditional mode 0, m optimised through this loss: ``absolute`` reaches 1.00 at g = 1,

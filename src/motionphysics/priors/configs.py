@@ -1,8 +1,8 @@
 """Published component configurations of the diffusers priors, recorded in the package so
 ``bench prior --random-weights`` builds the real architectures without downloading.
 
-Sources (no Hub file was read from here; the values were gathered in
-``research/priors-brief.md`` from the diffusers 0.42.1 classes, the CogVideoX conversion
+Sources (no Hub file was read from here; the values were gathered, in the project's
+research notes, from the diffusers 0.42.1 classes, the CogVideoX conversion
 script ``scripts/convert_cogvideox_to_diffusers.py``, the SAT configs of THUDM/CogVideo and
 a mirror of the ModelScope ``unet/config.json``): every field below equals the published
 ``config.json`` / ``scheduler_config.json`` as far as those sources show. The loaders

@@ -1,6 +1,6 @@
 """A run directory as the viewer reads it: the rest splats, the trajectory, the side data.
 
-What the viewer needs from a run directory (DESIGN.md, "Run directory")::
+What the viewer needs from a run directory (README.md, "Run directory")::
 
     run.yaml         the resolved config: camera (start view), boundary conditions
     params.json      prompt, material per object with provenance, optimisation history
