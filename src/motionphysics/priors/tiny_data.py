@@ -292,12 +292,12 @@ def render_clip(spec: ClipSpec) -> tuple[np.ndarray, dict[str, Any]]:
     """
     import torch
 
-    from motionphysics.pipeline import (
-        _map_to_sim,
+    from motionphysics.assembly import (
         ground_splats,
         render_view,
         resolve_camera,
         resolve_material,
+        resolve_simulation,
         simulate_forward,
     )
     from motionphysics.render.camera import camera_from_config
@@ -322,7 +322,7 @@ def render_clip(spec: ClipSpec) -> tuple[np.ndarray, dict[str, Any]]:
         ground = {k: v[sel] for k, v in ground.items()}
         ground["covs"][:, :2, :2] *= n0 / GROUND_SPLATS
     material = resolve_material(cfg, None)["material"]
-    sim_values, _ = _map_to_sim(material, cfg, sim_scene)
+    sim_values = resolve_simulation(material, cfg, sim_scene).values
     xs, Fs, vs, _ = simulate_forward(
         sim_scene, cfg, material, sim_values, "cpu", CLIP_FRAMES, _Quiet()
     )
