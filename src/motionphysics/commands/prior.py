@@ -1,15 +1,16 @@
-"""``motionphysics prior data|train|eval``: build the embedded tiny motion prior.
+"""motionphysics prior data|train|eval: build the embedded tiny motion prior.
 
-``prior data OUT``   simulate and render training clips (our simulator and renderer)
+prior data OUT       simulate and render training clips (our simulator and renderer)
                      into uint8 shards under OUT; deterministic per --seed, resumable
                      (shards already there are kept), parallel over --workers.
-``prior train DATA`` train the tiny text-to-video diffusion prior on those shards for
+prior train DATA     train the tiny text-to-video diffusion prior on those shards for
                      --budget-min minutes; --resume continues a checkpoint exactly
                      (weights, EMA, optimiser, RNG, data position).
-``prior eval CKPT DATA``  caption discrimination over the motion groups on held-out
+prior eval CKPT DATA caption discrimination over the motion groups on held-out
                      clips with held-out phrasings (prints JSON).
 
-See src/motionphysics/priors/MODEL_CARD.md for the shipped weights.
+The shipped weights and their measured limits are described in the model card
+beside them in the package (priors/, the model card file).
 """
 
 from __future__ import annotations
@@ -118,7 +119,11 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="prior_command", metavar="STEP")
     sub.required = True
 
-    d = sub.add_parser("data", help="simulate and render training clips into shards")
+    d = sub.add_parser(
+        "data",
+        help="simulate and render training clips into shards",
+        description="Simulate and render training clips into uint8 shards (deterministic per seed, resumable).",
+    )
     d.add_argument("out", metavar="OUT", help="output directory (shards are added/kept)")
     d.add_argument("--clips", type=_positive(int), default=1000, help="number of clips")
     d.add_argument("--workers", type=_positive(int), default=1, help="processes")
@@ -130,12 +135,16 @@ def register(subparsers) -> None:
     )
     d.set_defaults(func=_data)
 
-    t = sub.add_parser("train", help="train the tiny prior on shards")
+    t = sub.add_parser(
+        "train",
+        help="train the tiny prior on shards",
+        description="Train the tiny text-to-video prior on shards, time-budgeted and resumable.",
+    )
     t.add_argument("data", metavar="DATA", help="directory of shards (`prior data`)")
     t.add_argument("--budget-min", type=_positive(float), default=30.0, help="minutes to train")
     t.add_argument("--steps", type=_positive(int), default=None, help="stop at this many steps")
-    t.add_argument("--batch", type=_positive(int), default=8)
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--batch", type=_positive(int), default=8, help="clips per training step")
+    t.add_argument("--seed", type=int, default=0, help="training seed (init, noise, order)")
     t.add_argument("--resume", action="store_true", help="continue the checkpoint at --out")
     t.add_argument("--out", metavar="PATH", help="checkpoint file (default DATA/tiny_prior.pt)")
     t.add_argument("--eval-data", metavar="DIR", help="held-out shards for the held-out metric")
@@ -144,14 +153,22 @@ def register(subparsers) -> None:
         action="store_true",
         help="re-read DATA at epoch boundaries (train while `prior data` still runs)",
     )
-    t.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    t.add_argument(
+        "--device", choices=("cpu", "cuda"), default="cpu", help="cuda trains a bigger model"
+    )
     t.add_argument("--threads", type=_positive(int), default=None, help="torch CPU threads")
     t.set_defaults(func=_train)
 
-    e = sub.add_parser("eval", help="caption discrimination on held-out clips")
+    e = sub.add_parser(
+        "eval",
+        help="caption discrimination on held-out clips",
+        description="Caption discrimination over the motion groups on held-out clips (JSON).",
+    )
     e.add_argument("checkpoint", metavar="CKPT", help="weights file (`prior train`)")
     e.add_argument("data", metavar="DATA", help="held-out shards")
-    e.add_argument("--max-clips", type=_positive(int), default=None)
+    e.add_argument(
+        "--max-clips", type=_positive(int), default=None, help="evaluate at most this many"
+    )
     e.add_argument("--train-phrasings", action="store_true", help="use training phrasings")
-    e.add_argument("--threads", type=_positive(int), default=None)
+    e.add_argument("--threads", type=_positive(int), default=None, help="torch CPU threads")
     e.set_defaults(func=_eval)
