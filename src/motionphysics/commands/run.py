@@ -111,6 +111,16 @@ def _main(args) -> int:
         )
     if args.iters is not None and args.iters < 0:
         raise UserInputError(f"--iters: expected a count >= 0, got {args.iters}")
+    for flag, value in (("--prior-path", args.prior_path), ("--guidance", args.guidance)):
+        if value is not None and cfg.optimize.prior == "none":
+            raise UserInputError(
+                f"{flag} {value}: it applies to a video prior, but the prior is none; "
+                "add --prior NAME"
+            )
+    if cfg.optimize.prior != "none" and cfg.optimize.iterations > 0:
+        from motionphysics.optimize.refine import check_prior_path
+
+        check_prior_path(cfg)  # the model directory, before the run directory is written
     return execute(
         args, cfg, optimise=True, init_backend=args.init, command="run", config_origin=args.config
     )
