@@ -117,6 +117,14 @@ def _main(args) -> int:
                 f"{flag} {value}: it applies to a video prior, but the prior is none; "
                 "add --prior NAME"
             )
+    if cfg.optimize.per_particle and cfg.optimize.prior != "none":
+        # The refinement could optimise [P] fields, but the final simulation resolves
+        # scene-wide values (assembly.resolve_simulation): refuse rather than drop them.
+        raise UserInputError(
+            f"optimize.per_particle: {', '.join(cfg.optimize.per_particle)} per particle is "
+            "not supported by run's refinement in this build (the final simulation takes "
+            "scene-wide values); remove optimize.per_particle"
+        )
     if cfg.optimize.prior != "none" and cfg.optimize.iterations > 0:
         from motionphysics.optimize.refine import check_prior_path
 

@@ -160,7 +160,7 @@ def check_prior_path(cfg) -> None:
     name = cfg.optimize.prior
     if name == "none" or not PRIORS.available(name):
         return  # not refining, or the pipeline's availability check answers
-    module = importlib.import_module(PRIORS.module_of(name))
+    module = importlib.import_module(PRIORS.get(name).__module__)
     components, hub_id = getattr(module, "COMPONENTS", None), getattr(module, "HUB_ID", None)
     if components is None or hub_id is None:
         return
