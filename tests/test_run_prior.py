@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
-from motionphysics.cli import main
 from tests.conftest import tiny_config_data
 from tests.priors.tiny_pipelines import CORPUS, tiny_dir
+
+from motionphysics.cli import main
 
 FRAMES = 4
 LOSSES = ["lmd", "sds", "flow", "video"]
@@ -128,9 +128,8 @@ def write_foreign_cogvideox(directory: Path, seed: int = 3) -> Path:
 
 def foreign_clip_tokenizer():
     """A CLIP byte-level BPE with other merges and a 24-token context."""
-    from transformers import CLIPTokenizer
-
     from tests.priors.tiny_pipelines import _bytes_to_unicode
+    from transformers import CLIPTokenizer
 
     chars = list(_bytes_to_unicode().values())
     vocab: dict[str, int] = {}
@@ -342,8 +341,19 @@ def test_subprocess_error_has_no_traceback(tmp_path):
 
     cfg = write_config(tmp_path / "c.yaml")
     proc = subprocess.run(
-        [sys.executable, "-m", "motionphysics", "run", str(cfg), "--prior", "modelscope",
-         "--prior-path", str(tmp_path / "missing"), "--out", str(tmp_path / "r")],  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "motionphysics",
+            "run",
+            str(cfg),
+            "--prior",
+            "modelscope",
+            "--prior-path",
+            str(tmp_path / "missing"),
+            "--out",
+            str(tmp_path / "r"),
+        ],  # fmt: skip
         capture_output=True,
         text=True,
         env={**os.environ},
