@@ -84,8 +84,15 @@ def run_iteration_bench(
         t_start = time.perf_counter()
         pred = problem.forward(theta, frames, cfg.optimize.grad_mode, cfg.optimize.window, timings)
         marks: dict[str, float] = {}
-        pred.rgb.register_hook(lambda g: marks.setdefault("rgb", time.perf_counter()))
-        pred.xs.register_hook(lambda g: marks.setdefault("xs", time.perf_counter()))
+
+        def mark(name):
+            def hook(grad):  # records when the gradient arrives; returns None (grad unchanged)
+                marks.setdefault(name, time.perf_counter())
+
+            return hook
+
+        pred.rgb.register_hook(mark("rgb"))
+        pred.xs.register_hook(mark("xs"))
         t1 = time.perf_counter()
         value = loss(pred, LossContext(iteration=0, num_frames=int(cfg.sim.frames)))
         t2 = time.perf_counter()
