@@ -254,6 +254,17 @@ def _fingerprint(cfg) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
 
+def _quiet_hub_progress() -> None:
+    """Turn off the weight-loading progress bars of transformers and diffusers."""
+    for module in ("transformers.utils.logging", "diffusers.utils.logging"):
+        try:
+            import importlib
+
+            importlib.import_module(module).disable_progress_bar()
+        except (ImportError, AttributeError):  # not installed: the prior load reports it
+            pass
+
+
 def _side_by_side(problem, start, final) -> dict[str, dict[str, Any]]:
     """``{name: {"initial", "final", "unit", "optimised"}}`` of the class's parameters
     (a per-particle final value as ``{"mean", "min", "max"}``)."""
@@ -295,6 +306,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     if name != "none":
         from motionphysics.priors import load_prior
 
+        _quiet_hub_progress()  # the run's own display shows the stage; no tqdm bars
         prior = load_prior(name, cfg.optimize.prior_path, device=parts.device)
         prior.set_prompt(cfg.prompt)
     bctx = LossBuildContext(
