@@ -362,3 +362,13 @@ def test_subprocess_error_has_no_traceback(tmp_path):
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert len([x for x in proc.stderr.splitlines() if x.strip()]) == 1
+
+
+def test_bench_targets_are_registered(capsys):
+    # without --random-weights nothing may be downloaded: a user error before any work
+    assert main(["bench", "prior", "--model", "cogvideox-2b"]) == 2
+    assert "--random-weights" in _one_line_error(capsys)
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "iteration", "--help"])
+    assert exc.value.code == 0
+    assert "LMD iteration" in capsys.readouterr().out
