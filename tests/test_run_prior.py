@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 import yaml
 from tests.conftest import tiny_config_data
-from tests.priors.tiny_pipelines import CORPUS, tiny_dir
+from tests.priors.tiny_pipelines import CORPUS, tiny_dir, write_diffusers_dummy_modelscope
 
 from motionphysics.cli import main
 
@@ -213,6 +213,10 @@ def dirs(tmp_path_factory):
         "modelscope": tiny_dir("modelscope"),
         "cogvideox-foreign": write_foreign_cogvideox(root / "cog-foreign"),
         "modelscope-foreign": write_foreign_modelscope(root / "ms-foreign"),
+        # diffusers' own dummy ModelScope components (VAE of scale 1, 32 px native)
+        "modelscope-dummy": write_diffusers_dummy_modelscope(root / "ms-dummy"),
+        # the 5b layout: rotary positional embeddings instead of the sin-cos table
+        "cogvideox-rope": tiny_dir("cogvideox-rope"),
     }
 
 
@@ -260,7 +264,9 @@ def check_run_directory(out: Path, iters: int = 2) -> dict:
 
 
 # ----------------------------------------------------------------------------- the CLI
-@pytest.mark.parametrize("kind", ["cogvideox-foreign", "modelscope-foreign"])
+@pytest.mark.parametrize(
+    "kind", ["cogvideox-foreign", "modelscope-foreign", "modelscope-dummy", "cogvideox-rope"]
+)
 def test_run_on_pipelines_written_by_someone_else(dirs, tmp_path, kind):
     name = kind.split("-")[0]
     cfg = write_config(tmp_path / "c.yaml")
