@@ -377,8 +377,10 @@ class OptimizeConfig(_Strict):
     (null: ``lmd``, learnable motion distillation, checked when used)."""
     losses: list[LossSpec] | None = None
     """Weighted losses, ``[{type: NAME, weight: W, ...options}]``; wins over ``loss``."""
-    guidance: float = Field(7.5, ge=0)
-    """Classifier-free guidance scale of the prior."""
+    guidance: float | None = Field(None, ge=0)
+    """Classifier-free guidance scale for every prior loss that has a ``guidance`` option
+    and does not set its own (``--guidance W``); None: each loss's own default (lmd /
+    sds 100 as in the paper, flow / video 6 for the sampled reference)."""
     iterations: int = Field(40, ge=0)
     """Optimisation iterations (0: none)."""
     boost: int = Field(8, ge=1)

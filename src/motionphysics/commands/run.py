@@ -113,6 +113,24 @@ def _main(args) -> int:
         )
     if args.iters is not None and args.iters < 0:
         raise UserInputError(f"--iters: expected a count >= 0, got {args.iters}")
+    for flag, value in (("--prior-path", args.prior_path), ("--guidance", args.guidance)):
+        if value is not None and cfg.optimize.prior == "none":
+            raise UserInputError(
+                f"{flag} {value}: it applies to a video prior, but the prior is none; "
+                "add --prior NAME"
+            )
+    if cfg.optimize.per_particle and cfg.optimize.prior != "none":
+        # The refinement could optimise [P] fields, but the final simulation resolves
+        # scene-wide values (assembly.resolve_simulation): refuse rather than drop them.
+        raise UserInputError(
+            f"optimize.per_particle: {', '.join(cfg.optimize.per_particle)} per particle is "
+            "not supported by run's refinement in this build (the final simulation takes "
+            "scene-wide values); remove optimize.per_particle"
+        )
+    if cfg.optimize.prior != "none" and cfg.optimize.iterations > 0:
+        from motionphysics.optimize.refine import check_prior_path
+
+        check_prior_path(cfg)  # the model directory, before the run directory is written
     given = {"loss": args.loss, "iters": args.iters, "prior": args.prior, "init": args.init}
     for line in check_run_flags(cfg, given, command="run"):
         print(line, file=sys.stderr)

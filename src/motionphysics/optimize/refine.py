@@ -13,6 +13,25 @@ subsequence at the config camera; a prior's ``encode`` resamples it to
 ``prior.num_frames`` and resizes it to ``prior.height x prior.width``. Gradients flow
 through every substep by default (``optimize.grad_mode``).
 
+Guidance: ``optimize.guidance`` (``--guidance W``), when given, is the guidance scale of
+every configured loss that has a ``guidance`` option and does not set its own in
+``optimize.losses``; unset, each loss keeps its own default (lmd / sds: the paper's 100,
+flow / video: 6 for the sampled reference). The scale each loss actually used is what
+``log.jsonl`` and ``params.json`` record.
+
+Perturbation (LMD, paper Suppl. D): a loss that exposes ``render_perturbation``
+(:class:`~motionphysics.losses.lmd.RenderPerturbation`) gets its render from
+:class:`PerturbedRenderer`: once per iteration, the object's splat centres move by
+``centers · L · N(0, I)`` and every SH coefficient by ``sh · N(0, I)``, the same noise
+for every frame of the subsequence, where ``L`` is the largest side of the rest
+particles' bounding box [m] (the paper's ε = 0.1 is in a simulation cube in which the
+object is normalised to unit size, PhysGaussian's ``transform2origin``). Only the loss
+render sees it: the simulation, ``video.mp4`` and ``trajectory.npz`` are rendered and
+simulated from the unperturbed scene. The paper perturbs the centres themselves; the
+released code uses the perturbed centres only for the SH view direction -- this follows
+the paper (the SH view direction uses the unperturbed centre). The noise is drawn from a
+generator seeded with ``(optimize.seed, iteration)``, so a resumed run draws the same.
+
 ``log.jsonl`` (one line per iteration: loss and components, ``t`` if a loss reports
 it, guidance, grad norms, params, substeps, timings) and ``checkpoint.pt`` (theta,
 Adam, random states and every loss's ``state_dict()``, so ``--resume`` continues
@@ -23,6 +42,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from pathlib import Path
 from typing import Any, ClassVar
 
 from torch import Tensor
@@ -30,7 +50,128 @@ from torch import Tensor
 from motionphysics.errors import UserInputError
 from motionphysics.losses.base import Loss, LossBuildContext, LossContext, Prediction
 
-__all__ = ["WeightedLoss", "build_losses", "run_refinement"]
+__all__ = [
+    "PerturbedRenderer",
+    "WeightedLoss",
+    "build_losses",
+    "check_prior_path",
+    "loss_guidance",
+    "run_refinement",
+]
+
+
+class PerturbedRenderer:
+    """The loss render with the LMD Gaussian perturbation (see the module docstring).
+
+    Wraps the assembly's :class:`~motionphysics.assembly.SplatRenderer`: ``(xs [S,P,3],
+    Fs [S,P,3,3]) -> rgb [S,H,W,3]`` float32 in [0, 1], differentiable in ``xs``/``Fs``.
+    Each call is one iteration's render (the loop renders once per iteration): it draws
+    ``n_pos [N, 3]`` and ``n_sh [N, K, 3]`` once and uses them for every frame.
+    ``calls`` is checkpointed (``state_dict``) so a resumed run continues the sequence.
+    """
+
+    def __init__(self, base, perturbation, seed: int):
+        import torch
+
+        self.base = base
+        self.centers = float(perturbation.centers)
+        self.sh = float(perturbation.sh)
+        self.seed = int(seed)
+        self.calls = 0
+        particles = torch.as_tensor(base.sim_scene.particles, dtype=torch.float64)
+        self.length = float((particles.max(0).values - particles.min(0).values).max())
+        """L [m]: the object's largest side at rest (the unit of the paper's ε)."""
+        self.last_noise: tuple | None = None
+        """(centre offsets [N,3] m, SH offsets [N,K,3]) of the last call (for tests)."""
+
+    def noise(self, iteration: int):
+        """The perturbation of ``iteration``: (centre offsets [N,3] m, SH offsets [N,K,3])."""
+        import torch
+
+        splats = self.base.sim_scene.splats
+        g = torch.Generator().manual_seed(self.seed * 1_000_003 + int(iteration) + 17)
+        n_pos = torch.randn(tuple(splats.means.shape), generator=g, dtype=torch.float32)
+        n_sh = torch.randn(tuple(splats.sh.shape), generator=g, dtype=torch.float32)
+        return self.centers * self.length * n_pos, self.sh * n_sh
+
+    def __call__(self, xs, Fs):
+        import dataclasses
+
+        import torch
+
+        from motionphysics.render.deform import deform_splats
+        from motionphysics.render.rasterize import rasterize
+
+        d_pos, d_sh = self.noise(self.calls)
+        self.calls += 1
+        self.last_noise = (d_pos, d_sh)
+        b = self.base
+        scene = b.sim_scene
+        splats = dataclasses.replace(scene.splats, sh=scene.splats.sh + d_sh.to(scene.splats.sh))
+        parent = scene.splat_parent.long()
+        frames = []
+        for i in range(xs.shape[0]):
+            x = torch.as_tensor(xs[i], dtype=torch.float32)
+            F = torch.as_tensor(Fs[i], dtype=torch.float32)
+            means, covs, colors = deform_splats(
+                splats, x, F, parent, scene.splat_offset.to(x), b.camera
+            )
+            means = means + d_pos.to(means)
+            opac = splats.opacities.to(x)
+            if b.ground is not None:  # the ground is not the object: never perturbed
+                means = torch.cat([means, b.ground["means"]])
+                covs = torch.cat([covs, b.ground["covs"]])
+                colors = torch.cat([colors.clamp(0, 1), b.ground["colors"]])
+                opac = torch.cat([opac, b.ground["opacities"]])
+            frames.append(rasterize(means, covs, colors, opac, b.camera, b.background).rgb)
+        return torch.stack(frames)
+
+    # checkpointed with the losses' states (the loop calls these duck-typed)
+    def state_dict(self) -> dict:
+        return {"perturbation_calls": self.calls}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.calls = int(state.get("perturbation_calls", 0))
+
+
+def loss_guidance(cfg) -> list[dict]:
+    """Each configured loss spec's options with ``optimize.guidance`` applied (see above)."""
+    from motionphysics.losses import LOSSES
+
+    out = []
+    for spec in cfg.optimize.loss_specs():
+        options = dict(spec.options())
+        model = getattr(LOSSES.get(spec.type), "Options", None)
+        fields = getattr(model, "model_fields", {}) if model is not None else {}
+        if cfg.optimize.guidance is not None and "guidance" in fields and "guidance" not in options:
+            options["guidance"] = float(cfg.optimize.guidance)
+        out.append(options)
+    return out
+
+
+def check_prior_path(cfg) -> None:
+    """Check ``optimize.prior_path`` holds the prior's diffusers components (exit 2 with
+    one line otherwise) before anything is written; priors without a directory layout
+    (``tiny``) check at load."""
+    import importlib
+
+    from motionphysics.priors import PRIORS
+
+    name = cfg.optimize.prior
+    if name == "none" or not PRIORS.available(name):
+        return  # not refining, or the pipeline's availability check answers
+    module = importlib.import_module(PRIORS.get(name).__module__)
+    components, hub_id = getattr(module, "COMPONENTS", None), getattr(module, "HUB_ID", None)
+    if components is None or hub_id is None:
+        return
+    from motionphysics.priors.loading import open_model_dir
+
+    path = cfg.optimize.prior_path
+    if path is not None and not Path(path).expanduser().exists():
+        text = str(path)
+        if text.count("/") == 1 and not text.startswith((".", "/", "~")):
+            return  # a hub id: resolved (downloaded) when the prior loads
+    open_model_dir(path, prior=name, hub_id=hub_id, components=components)
 
 
 class WeightedLoss(Loss):
@@ -92,14 +233,14 @@ def build_losses(cfg, ctx: LossBuildContext) -> WeightedLoss:
     from motionphysics.losses import LOSSES
 
     terms = []
-    for spec in cfg.optimize.loss_specs():
+    for spec, opts in zip(cfg.optimize.loss_specs(), loss_guidance(cfg), strict=True):
         cls = LOSSES.get(spec.type)
         if cls.needs_prior and ctx.prior is None:
             raise UserInputError(
                 f"optimize.losses: loss {spec.type!r} needs a video prior but optimize.prior is "
                 "none; pass --prior NAME"
             )
-        options = LOSSES.options(spec.type, spec.options())
+        options = LOSSES.options(spec.type, opts)
         terms.append((spec.type, float(spec.weight), cls.build(options, ctx)))
     return WeightedLoss(terms)
 
@@ -113,10 +254,46 @@ def _fingerprint(cfg) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
 
+def _quiet_hub_progress() -> None:
+    """Turn off the weight-loading progress bars of transformers and diffusers."""
+    for module in ("transformers.utils.logging", "diffusers.utils.logging"):
+        try:
+            import importlib
+
+            importlib.import_module(module).disable_progress_bar()
+        except (ImportError, AttributeError):  # not installed: the prior load reports it
+            pass
+
+
+def _side_by_side(problem, start, final) -> dict[str, dict[str, Any]]:
+    """``{name: {"initial", "final", "unit", "optimised"}}`` of the class's parameters
+    (a per-particle final value as ``{"mean", "min", "max"}``)."""
+    import numpy as np
+
+    def value(v):
+        a = np.asarray(v, dtype=np.float64)
+        if a.size == 1:
+            return float(a.reshape(()))
+        return {"mean": float(a.mean()), "min": float(a.min()), "max": float(a.max())}
+
+    out = {}
+    for name, v0 in {"density": start.density, **start.values}.items():
+        v1 = final.density if name == "density" else final.values.get(name, v0)
+        spec = problem.specs.get(name)
+        out[name] = {
+            "initial": value(v0),
+            "final": value(v1),
+            "unit": spec.unit if spec is not None else None,
+            "optimised": name in problem.theta_map.names,
+        }
+    return out
+
+
 def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[str, Any]:
     """Optimise theta of ``parts.material`` (an Assembly built with ``needs_grad=True``).
 
-    Returns ``{"material": MaterialParams, "history": [...], "stop_reason", "message",
+    Returns ``{"material": MaterialParams, "parameters": {name: {initial, final, unit,
+    optimised}}, "history": [...], "stop_reason", "message",
     "iterations_run", "loss", "losses", "prior", "grad_mode", "boost", "optimised",
     "substeps_changes"}`` (the caller records it in params.json as ``optimise``).
     """
@@ -129,6 +306,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     if name != "none":
         from motionphysics.priors import load_prior
 
+        _quiet_hub_progress()  # the run's own display shows the stage; no tqdm bars
         prior = load_prior(name, cfg.optimize.prior_path, device=parts.device)
         prior.set_prompt(cfg.prompt)
     bctx = LossBuildContext(
@@ -145,6 +323,28 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     )
     loss = build_losses(cfg, bctx)
     problem = build_problem(parts, loss)
+    stateful = [lo for _, _, lo in loss.terms]
+    perturbations = [
+        lo.render_perturbation
+        for _, _, lo in loss.terms
+        if getattr(lo, "render_perturbation", None) is not None
+    ]
+    perturbed = None
+    if perturbations and problem.renderer is not None:
+        # One render feeds every loss of the sum: the perturbation of the first loss
+        # that asks for one (a second lmd term would share it).
+        perturbed = PerturbedRenderer(problem.renderer, perturbations[0], int(cfg.optimize.seed))
+        problem.renderer = perturbed
+        stateful.append(perturbed)
+    guidances = [
+        float(getattr(lo, "opts", None).guidance)
+        for _, _, lo in loss.terms
+        if hasattr(getattr(lo, "opts", None), "guidance")
+    ]
+    guidance = guidances[0] if guidances else None
+    extras: dict[str, Any] = {"prompt": cfg.prompt, "prior": prior}
+    if guidance is not None:
+        extras["guidance"] = guidance
     result = optimize(
         problem,
         cfg.optimize,
@@ -153,12 +353,16 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         fingerprint=_fingerprint(cfg),
         progress=(lambda rec: stage.advance()) if stage is not None else None,
         observer=writer.observer,
-        extras={"prompt": cfg.prompt, "prior": prior, "guidance": float(cfg.optimize.guidance)},
-        losses=[lo for _, _, lo in loss.terms],
+        extras=extras,
+        losses=stateful,
     )
     writer.add_files("log.jsonl", "checkpoint.pt")
+    if (writer.path / "prior_reference.mp4").is_file():
+        writer.add_files("prior_reference.mp4")
+    final = final_material(problem, parts.material, result.theta)
     return {
-        "material": final_material(problem, parts.material, result.theta),
+        "material": final,
+        "parameters": _side_by_side(problem, parts.material, final),
         "history": result.history,
         "stop_reason": result.stop_reason,
         "message": result.message,
@@ -167,7 +371,24 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         "losses": [{"type": n, "weight": w} for n, w, _ in loss.terms],
         "prior": name,
         "prior_path": cfg.optimize.prior_path,
-        "guidance": float(cfg.optimize.guidance),
+        "guidance": guidance,
+        "guidance_per_loss": {
+            n: float(lo.opts.guidance)
+            for n, _, lo in loss.terms
+            if hasattr(getattr(lo, "opts", None), "guidance")
+        },
+        "perturbation": (
+            {
+                "centers_std": perturbed.centers * perturbed.length,
+                "centers_epsilon": perturbed.centers,
+                "object_size": perturbed.length,
+                "sh_std": perturbed.sh,
+                "applies_to": "the loss render only",
+            }
+            if perturbed is not None
+            else None
+        ),
+        "per_particle": list(cfg.optimize.per_particle),
         "grad_mode": cfg.optimize.grad_mode,
         "boost": cfg.optimize.boost,
         "optimised": list(problem.theta_map.names),
