@@ -264,8 +264,16 @@ def check_run_directory(out: Path, iters: int = 2) -> dict:
 
 
 # ----------------------------------------------------------------------------- the CLI
+# Two foreign pipelines in the default suite; the other two (and the loss x prior matrix
+# beyond lmd) run with `make test-slow`: each case is a whole run (~15-50 s on 2 cores).
 @pytest.mark.parametrize(
-    "kind", ["cogvideox-foreign", "modelscope-foreign", "modelscope-dummy", "cogvideox-rope"]
+    "kind",
+    [
+        "cogvideox-foreign",
+        "modelscope-foreign",
+        pytest.param("modelscope-dummy", marks=pytest.mark.slow),
+        pytest.param("cogvideox-rope", marks=pytest.mark.slow),
+    ],
 )
 def test_run_on_pipelines_written_by_someone_else(dirs, tmp_path, kind):
     name = kind.split("-")[0]
@@ -279,7 +287,10 @@ def test_run_on_pipelines_written_by_someone_else(dirs, tmp_path, kind):
 
 
 @pytest.mark.parametrize("prior", PRIORS)
-@pytest.mark.parametrize("loss", LOSSES)
+@pytest.mark.parametrize(
+    "loss",
+    [pytest.param(name, marks=[] if name == "lmd" else [pytest.mark.slow]) for name in LOSSES],
+)
 def test_every_loss_and_prior_refines_end_to_end(dirs, tmp_path, prior, loss):
     cfg = write_config(tmp_path / "c.yaml", params=["E"])
     out = tmp_path / "run"

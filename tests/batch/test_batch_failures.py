@@ -9,7 +9,6 @@ import stat
 from pathlib import Path
 
 from conftest import TINY, read_table, run_batch_cli
-
 from motionphysics.batch import load_sweep, write_results
 from motionphysics.batch.jobs import JobSpec, execute_job, read_job_state
 

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+
 from conftest import TINY, batch_cmd, batch_env, job_records, read_table, run_batch_cli
 
 pytestmark = pytest.mark.slow

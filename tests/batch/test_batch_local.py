@@ -17,6 +17,7 @@ import subprocess
 import time
 
 import pytest
+
 from conftest import TINY, batch_cmd, batch_env, job_records, read_table, run_batch_cli, snapshot
 
 SWEEP = f"""\

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 
 def _main(args) -> int:
-    from motionphysics.metrics.ecms import ECMSConfig
     from motionphysics.evaluation.evaluate import evaluate_run, summary_lines
+    from motionphysics.metrics.ecms import ECMSConfig
 
     ecfg = ECMSConfig(
         bracketing=args.ecms_bracketing,

@@ -44,8 +44,8 @@ def run_iteration_bench(
     from motionphysics.losses.lmd import LmdLoss
     from motionphysics.optimize.boosting import frames_for_iteration
     from motionphysics.optimize.fit import build_problem
-    from motionphysics.optimize.refine import PerturbedRenderer
     from motionphysics.optimize.prior_bench import build_random_prior
+    from motionphysics.optimize.refine import PerturbedRenderer
     from motionphysics.runconfig import load_run_config
     from motionphysics.runtime import check_device, set_threads
 
