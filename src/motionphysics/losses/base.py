@@ -115,7 +115,7 @@ class Loss(ABC):
         """Learnable or stochastic state to checkpoint (e.g. the LMD extractor); default none."""
         return {}
 
-    def load_state_dict(self, state: dict) -> None:
+    def load_state_dict(self, state: dict) -> None:  # noqa: B027 - optional hook, default no state
         """Restore what :meth:`state_dict` returned."""
 
     @abstractmethod
