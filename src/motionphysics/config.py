@@ -410,6 +410,22 @@ class OptimizeConfig(_Strict):
         return [LossSpec(type=self.loss or DEFAULT_LOSS)]
 
 
+MAX_OBJECTS = 8
+"""Most objects one scene may hold (the simulator keeps one grid velocity field each)."""
+
+
+class ObjectConfig(SceneConfig):
+    """One object of a scene of several (``objects:``): its own scene keys, material and
+    initial velocity. ``max_particles`` is this object's share of the particles."""
+
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z][A-Za-z0-9 _-]*$")
+    """What the object is called; the init backends look for it in the prompt."""
+    material: MaterialConfig = MaterialConfig()
+    """Given fields override the estimate for this object."""
+    initial_velocity: Vec3 | None = None
+    """Initial velocity of this object's particles [m/s] (absent: ``sim.initial_velocity``)."""
+
+
 class RunConfig(_Strict):
     scene: SceneConfig = SceneConfig()
     prompt: str = "An elastic ball hits the ground and bounces back."
@@ -424,6 +440,40 @@ class RunConfig(_Strict):
     """Write INRIA-format splats per frame to ``splats/``."""
     versions: dict[str, str] = {}
     """Informational: package versions that wrote this config (run.yaml); ignored on input."""
+    objects: list[ObjectConfig] | None = None
+    """Several objects, each with its own scene keys, ``material:`` and ``initial_velocity``
+    (null: the one object of ``scene:`` + ``material:``). With ``objects:`` the ``scene:``
+    and ``material:`` blocks must be left out."""
+
+    @model_validator(mode="after")
+    def _objects_or_scene(self):
+        if self.objects is None:
+            return self
+        if not self.objects:
+            raise ValueError("objects: expected a list of at least one {name, source, ...} entry")
+        if len(self.objects) > MAX_OBJECTS:
+            raise ValueError(f"objects: at most {MAX_OBJECTS} objects, got {len(self.objects)}")
+        names = [o.name for o in self.objects]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"objects: names must differ, {', '.join(dup)} given twice")
+        # run.yaml holds the default blocks; anything else beside ``objects:`` is ambiguous
+        if self.scene != SceneConfig() or self.material != MaterialConfig():
+            raise ValueError(
+                "objects: give each object's scene keys and material inside its entry, not "
+                "in scene: / material: beside objects:"
+            )
+        return self
+
+    def object_configs(self) -> list[ObjectConfig]:
+        """The objects of the scene: ``objects:``, or the one of ``scene:`` + ``material:``."""
+        if self.objects is not None:
+            return list(self.objects)
+        return [
+            ObjectConfig(
+                name="object", material=self.material, **self.scene.model_dump(by_alias=True)
+            )
+        ]
 
 
 # --- error messages ---------------------------------------------------------------------
