@@ -462,15 +462,15 @@ class SceneMaterial:
         return _per_particle_union([o.material.values for o in self.objects], self.object_id)
 
 
-def _per_particle_union(per_object: list[Mapping[str, Any]], object_id) -> dict[str, Any]:
+def _per_particle_union(dicts: list[Mapping[str, Any]], object_id) -> dict[str, Any]:
     """{name: [P]} from one {name: value} per object (``SIM_FILL`` where an object lacks
     ``name``); torch tensors stay differentiable (:func:`sim.per_object`)."""
     from motionphysics.sim.model import per_object
 
-    names = list(dict.fromkeys(k for d in per_object for k in d))
+    names = list(dict.fromkeys(k for d in dicts for k in d))
     out = {}
     for name in names:
-        vals = [d.get(name, SIM_FILL.get(name, 0.0)) for d in per_object]
+        vals = [d.get(name, SIM_FILL.get(name, 0.0)) for d in dicts]
         out[name] = per_object(np.asarray(object_id), vals)
     return out
 
@@ -993,11 +993,19 @@ class Assembly:
         )
 
     # -- adapters for the optimisation loop --------------------------------------------
-    def simulator(self, num_frames: int | None = None) -> BridgeSimulator:
-        """Differentiable simulator (needs ``needs_grad=True``)."""
+    def simulator(self, num_frames: int | None = None, *, per_object: bool = False):
+        """Differentiable simulator (needs ``needs_grad=True``); several objects:
+        ``per_object=True`` gives the :class:`ObjectsSimulator` (one parameter vector per
+        object)."""
         if not self.needs_grad:
             raise RuntimeError("assemble(..., needs_grad=True) is required for a simulator")
         if self.objects is not None:
+            if not per_object:
+                raise UserInputError(
+                    "objects: optimising the materials of several objects (run's refinement, "
+                    "fit) is not available yet; simulate them with --prior none or fit one "
+                    "object at a time"
+                )
             return ObjectsSimulator(self, int(num_frames or self.cfg.sim.frames))
         return BridgeSimulator(
             self.simulation,
