@@ -141,7 +141,7 @@ def render_report(
 
     out.append("<h2>Material</h2>")
     if params.get("objects"):
-        out += _objects_table(params["objects"], params.get("metrics_objects"), e)
+        out += _objects_table(params["objects"], e)
     cls = params.get("class", "?")
     prov = params.get("provenance", {}) or {}
     if not params.get("objects"):
@@ -228,7 +228,7 @@ def render_report(
     return "\n".join(out) + "\n"
 
 
-def _objects_table(objects, metrics, e) -> list[str]:
+def _objects_table(objects, e) -> list[str]:
     """One row per object of a scene of several: name, class, backend, density, parameters."""
     rows = [
         "<table><tr><th>object</th><th>class</th><th>from</th><th>particles</th>"

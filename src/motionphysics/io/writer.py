@@ -495,6 +495,15 @@ class RunWriter:
             for k in ("final_height_ratio", "spread_ratio", "max_displacement")
             if k in metrics
         }
+        if metrics.get("objects"):  # the same headline values of each object
+            self.state["metrics"]["objects"] = {
+                name: {
+                    k: m[k]
+                    for k in ("final_height_ratio", "spread_ratio", "max_displacement")
+                    if k in m
+                }
+                for name, m in metrics["objects"].items()
+            }
         self.add_files("metrics.json")
         return metrics
 
