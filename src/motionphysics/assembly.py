@@ -959,6 +959,17 @@ class Assembly:
         (differentiable; :func:`sim_values` in the resolved map context)."""
         return sim_values(physical, self.material.cls, self.resolution.context)
 
+    def to_sim_objects(self, physicals: list[Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """Several objects: one physical dict per object (density included; tensors or
+        floats) -> one simulation dict each, in that object's map context
+        (differentiable; what :class:`ObjectsSimulator` takes)."""
+        if self.objects is None:
+            raise RuntimeError("to_sim_objects: this assembly has one object (use to_sim)")
+        return [
+            sim_values(p, o.material.cls, o.resolution.context)
+            for p, o in zip(physicals, self.objects, strict=True)
+        ]
+
     def simulate(self, frames: int | None = None, st=None, *, material=None, cfg=None):
         """Forward rollout -> (x [T,P,3], F [T,P,3,3], v [T,P,3] float32, substeps).
 

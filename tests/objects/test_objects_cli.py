@@ -76,9 +76,7 @@ def test_two_elastic_balls_thrown_at_each_other_move_apart(tmp_path):
     assert objs[0]["initial_velocity"] == [1.5, 0.0, 0.0]
     assert params["class"] is None and params["params"] is None
     assert sum(o["particles"] for o in objs) == x.shape[1]
-    np.testing.assert_allclose(
-        traj["object_mass"], [m[oid == k].sum() for k in (0, 1)], rtol=1e-6
-    )
+    np.testing.assert_allclose(traj["object_mass"], [m[oid == k].sum() for k in (0, 1)], rtol=1e-6)
 
 
 def test_objects_of_two_classes_through_run_on_a_floor_domain(tmp_path):
@@ -122,9 +120,7 @@ def test_objects_of_two_classes_through_run_on_a_floor_domain(tmp_path):
     ext0 = np.ptp(x[0, cube], axis=0)
     ext1 = np.ptp(x[-1, cube], axis=0)
     np.testing.assert_allclose(ext1, ext0, rtol=0.03)
-    np.testing.assert_allclose(
-        traj["mass"][cube] / traj["volume"][cube], 7850.0, rtol=1e-5
-    )
+    np.testing.assert_allclose(traj["mass"][cube] / traj["volume"][cube], 7850.0, rtol=1e-5)
     # per-object metrics, report row per object, run.yaml re-reads with the materials
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["objects"]) == {"ball", "cube"}

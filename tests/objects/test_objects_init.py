@@ -80,7 +80,10 @@ DUCK = {"material_type": "elastic", "density": 1100, "E": 2.0e7, "nu": 0.45}
 def test_llm_per_object_answer_in_one_request():
     with FakeChatServer([json.dumps({"axe": AXE, "duck": DUCK})]) as srv:
         a, d = estimate_objects(
-            "a steel axe falls onto a rubber duck", ["axe", "duck"], backend="llm", options=_opts(srv)
+            "a steel axe falls onto a rubber duck",
+            ["axe", "duck"],
+            backend="llm",
+            options=_opts(srv),
         )
     assert len(srv.requests) == 1
     text = _user_text(srv.requests[0])
@@ -94,7 +97,10 @@ def test_llm_one_object_missing_is_reasked_then_refused():
     # first answer lacks the duck: re-asked once naming it; the second gives it
     with FakeChatServer([json.dumps({"axe": AXE}), json.dumps({"duck": DUCK})]) as srv:
         a, d = estimate_objects(
-            "a steel axe falls onto a rubber duck", ["axe", "duck"], backend="llm", options=_opts(srv)
+            "a steel axe falls onto a rubber duck",
+            ["axe", "duck"],
+            backend="llm",
+            options=_opts(srv),
         )
     assert len(srv.requests) == 2
     assert 'no answer for object "duck"' in srv.requests[1]["messages"][-1]["content"]
@@ -102,7 +108,9 @@ def test_llm_one_object_missing_is_reasked_then_refused():
     # missing twice: one-line error naming the object
     with FakeChatServer([json.dumps({"axe": AXE}), json.dumps({"axe": AXE})]) as srv:
         with pytest.raises(LLMError, match='object "duck"') as err:
-            estimate_objects("a steel axe hits a duck", ["axe", "duck"], backend="llm", options=_opts(srv))
+            estimate_objects(
+                "a steel axe hits a duck", ["axe", "duck"], backend="llm", options=_opts(srv)
+            )
     assert "\n" not in str(err.value)
 
 
@@ -110,7 +118,10 @@ def test_llm_out_of_range_object_is_clamped():
     soft = {**DUCK, "E": 10.0}  # below the elastic range floor (1e4 Pa)
     with FakeChatServer([json.dumps({"axe": AXE, "duck": soft})]) as srv:
         a, d = estimate_objects(
-            "a steel axe falls onto a rubber duck", ["axe", "duck"], backend="llm", options=_opts(srv)
+            "a steel axe falls onto a rubber duck",
+            ["axe", "duck"],
+            backend="llm",
+            options=_opts(srv),
         )
     assert a.clamped == []
     assert [(c.field, c.original) for c in d.clamped] == [("E", 10.0)]
