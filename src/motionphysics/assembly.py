@@ -522,6 +522,8 @@ def object_config(cfg: RunConfig, ocfg) -> RunConfig:
     data = config_to_dict(cfg)
     o = ocfg.model_dump(mode="json", by_alias=True)
     name, mat, vel = o.pop("name"), o.pop("material"), o.pop("initial_velocity")
+    # (its part is already selected: the one-object config resolves its material only)
+    o["split"], o["part"] = None, None
     data["objects"] = None
     data["scene"] = o
     data["material"] = mat
@@ -1077,6 +1079,8 @@ def assemble(
     INIT_BACKENDS.check(init_backend)
     stage = stage or _null_stage
     observer = observer or NullObserver()
+    if cfg.objects is None and cfg.scene.split is not None:
+        cfg = split_config(cfg, config_origin)
     if cfg.objects is not None:
         return _assemble_objects(
             cfg,
@@ -1167,6 +1171,44 @@ def assemble(
     )
 
 
+def split_config(cfg: RunConfig, origin: str = "<config>") -> RunConfig:
+    """``scene.split`` -> the same config with one ``objects:`` entry per part.
+
+    Each part keeps the scene keys (``split`` + ``part`` select its splats), gets the
+    ``material:`` block and a share of ``scene.max_particles`` proportional to its splats;
+    names come from ``scene.split_names`` or are ``part<id>``."""
+    from motionphysics.scene import load_scene
+    from motionphysics.scene.split import part_labels
+
+    sc = cfg.scene
+    scene = load_scene(sc.source, shade=sc.shade)
+    labels = part_labels(scene, sc.source, sc.split, sc.split_property)
+    parts, counts = np.unique(labels, return_counts=True)
+    if sc.split_names is not None and len(sc.split_names) != len(parts):
+        raise UserInputError(
+            f"scene.split_names: {len(sc.split_names)} names for the {len(parts)} parts "
+            f"{sc.source} splits into by {sc.split}"
+        )
+    names = sc.split_names or [f"part{int(p)}" for p in parts]
+    data = config_to_dict(cfg)
+    base = dict(data["scene"])
+    base.pop("split_names")
+    total = int(counts.sum())
+    data["objects"] = [
+        {
+            **base,
+            "name": name,
+            "part": int(p),
+            "max_particles": max(1, round(sc.max_particles * int(c) / total)),
+            "material": data["material"],
+        }
+        for name, p, c in zip(names, parts, counts, strict=True)
+    ]
+    data.pop("scene")
+    data.pop("material")
+    return config_from_dict(data, origin)
+
+
 def _assemble_objects(
     cfg: RunConfig,
     device: str,
@@ -1199,7 +1241,20 @@ def _assemble_objects(
     ocfgs = cfg.object_configs()
     names = [o.name for o in ocfgs]
     with stage("load scene"):
-        scenes = [load_scene(o.source, shade=o.shade) for o in ocfgs]
+        loaded: dict[tuple[str, bool], Any] = {}
+        scenes = []
+        for i, o in enumerate(ocfgs):
+            key = (o.source, o.shade)
+            if key not in loaded:
+                loaded[key] = load_scene(o.source, shade=o.shade)
+            scene = loaded[key]
+            if o.split is not None:
+                from motionphysics.scene.split import select_part
+
+                scene = select_part(
+                    scene, o.source, o.split, o.part, o.split_property, f"objects[{i}].part"
+                )
+            scenes.append(scene)
         classes = [o.material.class_ for o in ocfgs]
         sim_scene = prepare_objects(
             scenes, ocfgs, cfg.sim, list(cfg.boundary_conditions), list(cfg.forces), classes

@@ -64,6 +64,18 @@ class SceneConfig(_Strict):
     shade: bool = True
     """Bake a default-light shading into the colours of a mesh that has no colours or
     texture (scene.mesh); false: flat mid grey."""
+    split: Literal["label", "components"] | None = None
+    """Split one 3DGS scene into objects: by the per-splat integer property
+    ``split_property`` of the .ply (``label``) or by connected components of the splat
+    centres (``components``, largest first); each part becomes an object (see
+    ``objects:``), named by ``split_names`` or ``part<id>``."""
+    split_property: str = "label"
+    """The per-splat .ply property ``split: label`` reads."""
+    split_names: list[str] | None = None
+    """Names of the parts in order (labels ascending, components by size)."""
+    part: int | None = None
+    """With ``split`` inside an ``objects:`` entry: which part this object is (the label
+    value, or the component's rank by size, 0 = largest)."""
 
     @field_validator("crop")
     @classmethod
@@ -448,11 +460,20 @@ class RunConfig(_Strict):
     @model_validator(mode="after")
     def _objects_or_scene(self):
         if self.objects is None:
+            if self.scene.part is not None:
+                raise ValueError("scene.part: only inside an objects: entry (with split)")
             return self
         if not self.objects:
             raise ValueError("objects: expected a list of at least one {name, source, ...} entry")
         if len(self.objects) > MAX_OBJECTS:
             raise ValueError(f"objects: at most {MAX_OBJECTS} objects, got {len(self.objects)}")
+        for i, o in enumerate(self.objects):
+            if (o.split is None) != (o.part is None):
+                raise ValueError(
+                    f"objects[{i}]: split and part go together (which part of the split scene)"
+                )
+            if o.split_names is not None:
+                raise ValueError(f"objects[{i}].split_names: name the object with name:")
         names = [o.name for o in self.objects]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
