@@ -459,6 +459,14 @@ class RunConfig(_Strict):
 
     @model_validator(mode="after")
     def _objects_or_scene(self):
+        several = self.objects is not None or self.scene.split is not None
+        if several and (self.optimize.prior != "none" or self.optimize.losses):
+            # (the differentiable simulator of several objects exists:
+            # assembly.ObjectsSimulator; the refinement loop is not wired to it yet)
+            raise ValueError(
+                "optimize.prior: refining the materials of several objects (objects: or "
+                "scene.split) is not available yet; use prior: none"
+            )
         if self.objects is None:
             if self.scene.part is not None:
                 raise ValueError("scene.part: only inside an objects: entry (with split)")

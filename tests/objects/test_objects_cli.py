@@ -147,3 +147,18 @@ def test_objects_config_errors():
     one = config_from_dict({"scene": {"scale": 0.5}, "material": {"class": "foam"}})
     (obj,) = one.object_configs()
     assert obj.scale == 0.5 and obj.material.class_ == "foam" and obj.initial_velocity is None
+
+
+def test_refinement_of_several_objects_refused_at_config_time():
+    with pytest.raises(UserInputError, match="several objects"):
+        config_from_dict({"objects": [{"name": "a"}], "optimize": {"prior": "tiny"}})
+
+
+def test_example_config_with_two_objects_of_different_classes():
+    from pathlib import Path
+
+    from motionphysics.runconfig import load_run_config
+
+    cfg = load_run_config(Path(__file__).resolve().parents[2] / "examples" / "axe_and_duck.yaml")
+    assert [o.name for o in cfg.objects] == ["duck", "axe"]
+    assert cfg.objects[1].initial_velocity == (0.0, 0.0, -1.0)
