@@ -89,3 +89,42 @@ def _raise(path, tmp_path):
     from motionphysics.runconfig import load_run_config
 
     assemble(load_run_config(path), estimate=False, reference_image=False)
+
+
+DONUT = "/work/shared/data/real/donut.ply"
+
+
+@pytest.mark.skipif(not __import__("os").path.exists(DONUT), reason="real capture not present")
+def test_real_capture_split_by_label_and_components(tmp_path):
+    from numpy.lib import recfunctions as rfn
+    from plyfile import PlyData, PlyElement
+
+    from motionphysics.scene.split import LINK_SPACINGS, part_labels, select_part, split_parts
+
+    v = PlyData.read(DONUT)["vertex"].data
+    z = np.asarray(v["z"])
+    lab = (z > np.median(z)).astype(np.int32) * 5  # labels 0 and 5
+    path = tmp_path / "donut_labelled.ply"
+    PlyData(
+        [PlyElement.describe(rfn.append_fields(v, "label", lab, usemask=False), "vertex")]
+    ).write(str(path))
+    scene = load_scene(str(path))
+    assert split_parts(scene, str(path), "label") == [0, 5]
+    top = select_part(scene, str(path), "label", 5)
+    assert top.num == int((lab == 5).sum())
+    assert float(top.means[:, 2].min()) > float(np.median(z)) - 1e-6
+    with pytest.raises(UserInputError, match="part 3 not found"):
+        select_part(scene, str(path), "label", 3)
+    # components of the real capture: every splat in one part, parts largest first, and
+    # no two parts closer than the link distance
+    comp = part_labels(scene, str(path), "components")
+    sizes = np.bincount(comp)
+    assert sizes.sum() == scene.num and np.all(np.diff(sizes) <= 0)
+    from scipy.spatial import cKDTree
+
+    pts = scene.means.double().numpy()
+    d, _ = cKDTree(pts).query(pts, k=2)
+    link = LINK_SPACINGS * float(np.median(d[:, 1]))
+    if len(sizes) > 1:
+        gap, _ = cKDTree(pts[comp == 0]).query(pts[comp == 1])
+        assert gap.min() > link

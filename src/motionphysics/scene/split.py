@@ -67,11 +67,16 @@ def _components(scene: GaussianScene) -> np.ndarray:
     big = np.nonzero(sizes >= max(1, MIN_PART_FRACTION * n))[0]
     if len(big) == 0:
         return np.zeros(n, dtype=np.int64)
-    # floaters join the nearest big component
+    # a floater joins, whole, the big component nearest to it
     in_big = np.isin(comp, big)
     if not in_big.all():
-        _, near = cKDTree(pts[in_big]).query(pts[~in_big])
-        comp[~in_big] = comp[in_big][near]
+        dist, near = cKDTree(pts[in_big]).query(pts[~in_big])
+        target = comp[in_big][near]
+        small = comp[~in_big]
+        order = np.lexsort((dist, small))  # per floater, its closest point first
+        first = order[np.r_[True, small[order][1:] != small[order][:-1]]]
+        lookup = dict(zip(small[first].tolist(), target[first].tolist(), strict=True))
+        comp[~in_big] = np.array([lookup[c] for c in small.tolist()], dtype=comp.dtype)
     # rank by size: 0 = most splats
     order = big[np.argsort(-sizes[big], kind="stable")]
     rank = np.full(comp.max() + 1, -1, dtype=np.int64)
