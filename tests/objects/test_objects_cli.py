@@ -162,3 +162,29 @@ def test_example_config_with_two_objects_of_different_classes():
     cfg = load_run_config(Path(__file__).resolve().parents[2] / "examples" / "axe_and_duck.yaml")
     assert [o.name for o in cfg.objects] == ["duck", "axe"]
     assert cfg.objects[1].initial_velocity == (0.0, 0.0, -1.0)
+
+
+def test_fitted_domain_leaves_room_for_each_objects_own_motion():
+    from motionphysics.assembly import assemble
+
+    data = {
+        "objects": [
+            _ball("slow", -0.2, 0.0, z=0.12, n=60, scale=0.2),
+            _ball("thrown", 0.2, 2.0, z=0.12, n=60, scale=0.2),
+        ],
+        "sim": {"grid": 16, "frames": 8, "frame_dt": 0.02, "substeps": "auto"},
+        "boundary_conditions": [
+            {"type": "surface_collider", "point": [0, 0, 0], "normal": [0, 0, 1], "mode": "slip"}
+        ],
+    }
+    asm = assemble(config_from_dict(data), estimate=False, reference_image=False)
+    wall_hi = float(asm.sim_scene.wall_hi[0])
+    # the thrown ball's path (2 m/s for 0.14 s = 0.28 m) fits inside the fitted box
+    assert wall_hi > 0.3 + 0.28
+    x, _, v, _ = asm.simulate()
+    oid = np.asarray(asm.sim_scene.object_id)
+    assert [h["wall"] for h in asm.last_rollout.wall_hits if h["wall"].startswith("x")] == []
+    # each object kept its own initial velocity
+    assert v[0, oid == 1, 0].mean() == pytest.approx(2.0, rel=1e-5)
+    assert abs(v[0, oid == 0, 0]).max() < 1e-6
+    assert x[:, :, 2].min() > -0.1 * asm.sim_scene.dx
