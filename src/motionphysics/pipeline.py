@@ -196,7 +196,7 @@ def run_pipeline(
                 vs,
                 video,
                 cfg,
-                parts.material if parts.objects is not None else material,
+                material,
                 active=getattr(parts.last_rollout, "active", None),
             )
         if cfg.export_ply:

@@ -58,6 +58,8 @@ def test_two_elastic_balls_thrown_at_each_other_move_apart(tmp_path):
     oid = traj["object_id"]
     x = traj["x"]
     assert oid.shape == (x.shape[1],) and set(np.unique(oid)) == {0, 1}
+    # nothing is cut away here: every particle simulated in every frame
+    assert traj["active"].shape == x.shape[:2] and traj["active"].all()
     assert list(traj["object_names"]) == ["left", "right"]
     m = traj["mass"]
     cx = np.stack([(x[:, oid == k, 0] * m[oid == k]).sum(1) / m[oid == k].sum() for k in (0, 1)])
@@ -135,6 +137,7 @@ def test_single_object_layout_unchanged(tmp_path, tiny_config):
     traj, params, _ = _run(tmp_path, tiny_config().model_dump(mode="json", by_alias=True))
     assert params["objects"] is None and params["class"] == "elastic"
     assert "object_id" not in traj.files
+    assert traj["active"].shape == traj["x"].shape[:2]
 
 
 def test_objects_config_errors():
