@@ -44,6 +44,10 @@ __all__ = [
     "AUTO_MAP_SUBSTEPS",
     "Assembly",
     "BridgeSimulator",
+    "ObjectPart",
+    "ObjectsSimulator",
+    "SceneMaterial",
+    "SceneResolution",
     "SimResolution",
     "SplatRenderer",
     "assemble",
@@ -316,23 +320,45 @@ def _pinned(cfg: RunConfig, substeps: int) -> RunConfig:
     return cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"substeps": int(substeps)})})
 
 
+def _material_sim(material, values: Mapping[str, Any]) -> dict[str, Any]:
+    """``build_simulation``'s material dict: the class (name, or per-particle ids of a
+    :class:`SceneMaterial`) and the simulation values."""
+    ids = getattr(material, "class_ids", None)
+    return {"class": ids if ids is not None else material.cls, **values}
+
+
 def simulate_forward(
-    sim_scene, cfg: RunConfig, material, sim_values, device, frames: int, st, observer=None
+    sim_scene,
+    cfg: RunConfig,
+    material,
+    sim_values,
+    device,
+    frames: int,
+    st,
+    observer=None,
+    *,
+    initial_velocity=None,
+    keep: dict[str, Any] | None = None,
 ):
     """Forward simulation of ``frames`` frames (what ``run``/``simulate``/``fit`` output).
 
-    ``sim_values``: simulation values (of :func:`resolve_simulation`); the substep count
-    is resolved from them by :func:`resolve_substeps`. ``st``: a progress stage handle
-    (``advance()``/``note()``). Returns x [T, P, 3] m, F [T, P, 3, 3] and v [T, P, 3]
-    m/s, float32 numpy (T = frames, frame 0 = the initial state), and the substeps.
+    ``sim_values``: simulation values (of :func:`resolve_simulation`, or per particle
+    for a :class:`SceneMaterial`); the substep count is resolved from them by
+    :func:`resolve_substeps`. ``st``: a progress stage handle (``advance()``/``note()``).
+    ``initial_velocity``: [P, 3] m/s per particle (several objects), or None (the
+    config's ``sim.initial_velocity``). ``keep``: when given, ``keep["last"]`` receives
+    the rollout's full result (``active`` [T, P], ``wall_hits``). Returns x [T, P, 3] m,
+    F [T, P, 3, 3] and v [T, P, 3] m/s, float32 numpy (T = frames, frame 0 = the
+    initial state), and the substeps.
     """
     from motionphysics.sim import build_simulation
 
     observer = observer or NullObserver()
-    n = resolve_substeps(cfg, material.cls, sim_values, float(sim_scene.dx))
-    sim = build_simulation(
-        sim_scene, _pinned(cfg, n), {"class": material.cls, **sim_values}, device
-    )
+    msim = _material_sim(material, sim_values)
+    n = resolve_substeps(cfg, msim["class"], sim_values, float(sim_scene.dx))
+    sim = build_simulation(sim_scene, _pinned(cfg, n), msim, device)
+    if initial_velocity is not None:
+        sim.set_initial_velocity(initial_velocity)
     st.note(f"simulate ({sim.substeps} substeps/frame)")
     ro = sim.rollout
     check = ro.check
@@ -347,6 +373,8 @@ def simulate_forward(
     ro.check = check_and_count
     st.advance()  # frame 0 is the initial state
     xs, Fs, vs = sim.run(frames, return_velocities=True)
+    if keep is not None:
+        keep["last"] = sim.last
     xs = np.asarray(_np(xs), dtype=np.float32)
     Fs = np.asarray(_np(Fs), dtype=np.float32)
     vs = np.asarray(_np(vs), dtype=np.float32)
@@ -359,6 +387,189 @@ def simulate_forward(
 
 
 # --------------------------------------------------------------------------------------
+# several objects
+# --------------------------------------------------------------------------------------
+SIM_FILL = {"n": 1.0}
+"""Value a per-particle simulation array takes on the particles of an object whose class
+has no such parameter (never read by that class's constitutive model; 0 otherwise)."""
+
+
+@dataclass(frozen=True)
+class ObjectPart:
+    """One object of a scene of several: its resolved material and where it came from."""
+
+    name: str
+    material: Any
+    """catalog.MaterialParams of this object."""
+    resolution: SimResolution
+    """Map context (this object's density and size), simulation values, substeps."""
+    provenance: dict[str, Any]
+    initial_velocity: tuple[float, float, float]
+    """m/s (the object's ``initial_velocity`` or ``sim.initial_velocity``)."""
+    count: int
+    """Particles of this object."""
+
+
+@dataclass(frozen=True)
+class SceneMaterial:
+    """The materials of several objects as the simulator sees them: per particle.
+
+    ``class_ids [P]`` int32, ``density [P]`` kg/m^3 (so masses are ``density x volume``
+    as for one object), ``object_id [P]`` int64; ``objects`` holds each object's
+    :class:`ObjectPart`."""
+
+    objects: tuple[ObjectPart, ...]
+    object_id: np.ndarray
+
+    @property
+    def cls(self) -> str:
+        """The classes, comma-joined in object order (display only)."""
+        return ",".join(o.material.cls for o in self.objects)
+
+    @property
+    def class_ids(self) -> np.ndarray:
+        from motionphysics.materials.catalog import class_id
+
+        ids = np.array([int(class_id(o.material.cls)) for o in self.objects], dtype=np.int32)
+        return ids[self.object_id]
+
+    @property
+    def density(self) -> np.ndarray:
+        d = np.array([float(o.material.density) for o in self.objects], dtype=np.float64)
+        return d[self.object_id]
+
+    @property
+    def values(self) -> dict[str, np.ndarray]:
+        """Physical parameters per particle [P] (the union of the objects' names)."""
+        return _per_particle_union([o.material.values for o in self.objects], self.object_id)
+
+
+def _per_particle_union(dicts: list[Mapping[str, Any]], object_id) -> dict[str, Any]:
+    """{name: [P]} from one {name: value} per object (``SIM_FILL`` where an object lacks
+    ``name``); torch tensors stay differentiable (:func:`sim.per_object`)."""
+    from motionphysics.sim.model import per_object
+
+    names = list(dict.fromkeys(k for d in dicts for k in d))
+    out = {}
+    for name in names:
+        vals = [d.get(name, SIM_FILL.get(name, 0.0)) for d in dicts]
+        out[name] = per_object(np.asarray(object_id), vals)
+    return out
+
+
+@dataclass(frozen=True)
+class SceneResolution:
+    """:class:`SimResolution` of a scene of several objects (per-particle values)."""
+
+    values: dict[str, Any]
+    """Simulation values per particle [P] float32 (density included)."""
+    class_ids: np.ndarray
+    substeps: int
+    frame_dt: float
+    grid_dims: tuple[int, int, int]
+    auto: bool
+    dx: float
+    objects: tuple[SimResolution, ...]
+    context: Any = None
+
+    @property
+    def dt(self) -> float:
+        return self.frame_dt / self.substeps
+
+    def record(self) -> dict[str, Any]:
+        """The ``sim_context`` block of ``params.json`` (each object's map: ``objects``)."""
+        return {
+            "dx": float(self.dx),
+            "dt": self.frame_dt / self.substeps,
+            "dt_map": float(self.objects[0].context.dt),
+            "substeps": int(self.substeps),
+            "substeps_mode": "auto" if self.auto else "fixed",
+            "frame_dt": float(self.frame_dt),
+            "length": max(float(o.context.length) for o in self.objects),
+            "grid_dims": [int(v) for v in self.grid_dims],
+        }
+
+
+class _ObjectView:
+    """The particles of one object with the scene's grid (what :func:`map_context` reads)."""
+
+    def __init__(self, sim_scene, mask: np.ndarray):
+        self.particles = _np(sim_scene.particles)[mask]
+        self.dx = float(sim_scene.dx)
+        self.grid_dims = tuple(int(v) for v in sim_scene.grid_dims)
+
+
+def object_config(cfg: RunConfig, ocfg) -> RunConfig:
+    """The one-object config of object ``ocfg`` (its scene keys, material, velocity)."""
+    data = config_to_dict(cfg)
+    o = ocfg.model_dump(mode="json", by_alias=True)
+    name, mat, vel = o.pop("name"), o.pop("material"), o.pop("initial_velocity")
+    # (its part is already selected: the one-object config resolves its material only)
+    o["split"], o["part"] = None, None
+    data["objects"] = None
+    data["scene"] = o
+    data["material"] = mat
+    if vel is not None:
+        data["sim"]["initial_velocity"] = vel
+    return config_from_dict(data, f"objects[{name}]")
+
+
+def resolve_scene_simulation(
+    cfg: RunConfig, sim_scene, materials: list, names: list[str]
+) -> tuple[list[SimResolution], SceneResolution]:
+    """Each object's :class:`SimResolution` (its own density and size in the map context)
+    and the scene's per-particle :class:`SceneResolution` (substeps: the stiffest
+    object's CFL limit under ``auto``)."""
+    oid = _np(sim_scene.object_id).astype(np.int64)
+    per = []
+    for k, (mat, ocfg) in enumerate(zip(materials, cfg.object_configs(), strict=True)):
+        per.append(
+            resolve_simulation(mat, object_config(cfg, ocfg), _ObjectView(sim_scene, oid == k))
+        )
+    from motionphysics.materials.catalog import class_id
+
+    ids = np.array([int(class_id(m.cls)) for m in materials], dtype=np.int32)[oid]
+    values = _per_particle_union([r.values for r in per], oid)
+    substeps = resolve_substeps(cfg, ids, values, float(sim_scene.dx))
+    return per, SceneResolution(
+        values=values,
+        class_ids=ids,
+        substeps=substeps,
+        frame_dt=float(cfg.sim.frame_dt),
+        grid_dims=tuple(int(v) for v in sim_scene.grid_dims),
+        auto=cfg.sim.substeps == "auto",
+        dx=float(sim_scene.dx),
+        objects=tuple(per),
+    )
+
+
+def estimate_objects(
+    prompt: str, names: list[str], image, backend: str, announce: bool = False
+) -> list[dict[str, Any]]:
+    """Per-object estimates from one prompt (``init.estimate_objects``), as
+    :func:`estimate_material` records them, in ``names`` order."""
+    from motionphysics.init import EstimateOptions
+    from motionphysics.init.estimate import estimate_objects as _estimate
+
+    ests = _estimate(
+        prompt, names, image=image, backend=backend, options=EstimateOptions(announce=announce)
+    )
+    return [
+        {
+            "class": est.cls,
+            "density": float(est.density),
+            "params": {k: float(v) for k, v in est.values.items()},
+            "backend": est.backend,
+            "raw": est.raw_answer,
+            "clamps": [c.to_dict() for c in est.clamped],
+            "estimate": est.to_dict(),
+        }
+        for est in ests
+    ]
+
+
+# --------------------------------------------------------------------------------------
+# camera, ground, rendering# --------------------------------------------------------------------------------------
 # camera, ground, rendering
 # --------------------------------------------------------------------------------------
 def _ground_height(cfg: RunConfig, xy_centre: np.ndarray, up: np.ndarray) -> float | None:
@@ -678,7 +889,21 @@ class Assembly:
     observer: Observer = field(default_factory=NullObserver)
     reference_image: np.ndarray | None = None
     """uint8 [H, W, 3] rest-state render (when one was made)."""
+    objects: tuple[ObjectPart, ...] | None = None
+    """Several objects (``objects:``): each one's material, resolution and provenance;
+    ``material`` is then their :class:`SceneMaterial` and ``resolution`` a
+    :class:`SceneResolution`. None: one object."""
+    last_rollout: Any = None
+    """The last :meth:`simulate`'s full rollout result (``active`` [T, P], ``wall_hits``)."""
     _simulation: Any = field(default=None, repr=False)
+
+    @property
+    def initial_velocity(self) -> np.ndarray | None:
+        """[P, 3] m/s of a scene of several objects (each its own), else None."""
+        if self.objects is None:
+            return None
+        v = np.array([o.initial_velocity for o in self.objects], dtype=np.float32)
+        return v[_np(self.sim_scene.object_id).astype(np.int64)]
 
     # -- the simulation ----------------------------------------------------------------
     @property
@@ -694,14 +919,19 @@ class Assembly:
             self._simulation = build_simulation(
                 self.sim_scene,
                 _pinned(self.cfg, self.resolution.substeps),
-                {"class": self.material.cls, **self.resolution.values},
+                _material_sim(self.material, self.resolution.values),
                 self.device,
                 requires_grad=self.needs_grad,
             )
+            if self.objects is not None:
+                self._simulation.set_initial_velocity(self.initial_velocity)
         return self._simulation
 
     def with_material(self, material) -> Assembly:
-        """The same scene and camera with another material (resolved the same way)."""
+        """The same scene and camera with another material (resolved the same way);
+        several objects: a list of MaterialParams, one per object."""
+        if self.objects is not None:
+            return self.with_materials(material)
         res = resolve_simulation(material, self.cfg, self.sim_scene)
         return replace(self, material=material, resolution=res, _simulation=None)
 
@@ -716,10 +946,34 @@ class Assembly:
         cfg = self.cfg.model_copy(update={"camera": cfg_cam.camera})
         return replace(self, cfg=cfg, camera=camera_from_config(cfg.camera), camera_note=note)
 
+    def with_materials(self, materials) -> Assembly:
+        """Several objects: new MaterialParams per object (a list or a SceneMaterial)."""
+        if isinstance(materials, SceneMaterial):
+            materials = [o.material for o in materials.objects]
+        names = [o.name for o in self.objects]
+        per, res = resolve_scene_simulation(self.cfg, self.sim_scene, list(materials), names)
+        objects = tuple(
+            replace(o, material=m, resolution=r)
+            for o, m, r in zip(self.objects, materials, per, strict=True)
+        )
+        mat = SceneMaterial(objects, _np(self.sim_scene.object_id).astype(np.int64))
+        return replace(self, material=mat, resolution=res, objects=objects, _simulation=None)
+
     def to_sim(self, physical: Mapping[str, Any]) -> dict[str, Any]:
         """Physical values (density included; tensors or floats) -> simulation values
         (differentiable; :func:`sim_values` in the resolved map context)."""
         return sim_values(physical, self.material.cls, self.resolution.context)
+
+    def to_sim_objects(self, physicals: list[Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """Several objects: one physical dict per object (density included; tensors or
+        floats) -> one simulation dict each, in that object's map context
+        (differentiable; what :class:`ObjectsSimulator` takes)."""
+        if self.objects is None:
+            raise RuntimeError("to_sim_objects: this assembly has one object (use to_sim)")
+        return [
+            sim_values(p, o.material.cls, o.resolution.context)
+            for p, o in zip(physicals, self.objects, strict=True)
+        ]
 
     def simulate(self, frames: int | None = None, st=None, *, material=None, cfg=None):
         """Forward rollout -> (x [T,P,3], F [T,P,3,3], v [T,P,3] float32, substeps).
@@ -728,9 +982,12 @@ class Assembly:
         the simulation context is resolved again for them by the same functions.
         """
         cfg = cfg or self.cfg
+        if self.objects is not None and material is not None:
+            return self.with_materials(material).simulate(frames, st, cfg=cfg)
         mat = material or self.material
         res = self.resolution if material is None else resolve_simulation(mat, cfg, self.sim_scene)
-        return simulate_forward(
+        keep: dict[str, Any] = {}
+        out = simulate_forward(
             self.sim_scene,
             cfg,
             mat,
@@ -739,7 +996,11 @@ class Assembly:
             int(frames or cfg.sim.frames),
             st or _NullHandle(),
             self.observer,
+            initial_velocity=self.initial_velocity,
+            keep=keep,
         )
+        self.last_rollout = keep.get("last")
+        return out
 
     def render(self, xs, Fs, on_frame=None) -> np.ndarray:
         """uint8 frames [T, H, W, 3] of the run camera for states x [T,P,3], F [T,P,3,3]."""
@@ -748,10 +1009,20 @@ class Assembly:
         )
 
     # -- adapters for the optimisation loop --------------------------------------------
-    def simulator(self, num_frames: int | None = None) -> BridgeSimulator:
-        """Differentiable simulator (needs ``needs_grad=True``)."""
+    def simulator(self, num_frames: int | None = None, *, per_object: bool = False):
+        """Differentiable simulator (needs ``needs_grad=True``); several objects:
+        ``per_object=True`` gives the :class:`ObjectsSimulator` (one parameter vector per
+        object)."""
         if not self.needs_grad:
             raise RuntimeError("assemble(..., needs_grad=True) is required for a simulator")
+        if self.objects is not None:
+            if not per_object:
+                raise UserInputError(
+                    "objects: optimising the materials of several objects (run's refinement, "
+                    "fit) is not available yet; simulate them with --prior none or fit one "
+                    "object at a time"
+                )
+            return ObjectsSimulator(self, int(num_frames or self.cfg.sim.frames))
         return BridgeSimulator(
             self.simulation,
             int(num_frames or self.cfg.sim.frames),
@@ -811,6 +1082,24 @@ def assemble(
     INIT_BACKENDS.check(init_backend)
     stage = stage or _null_stage
     observer = observer or NullObserver()
+    if cfg.objects is None and cfg.scene.split is not None:
+        cfg = split_config(cfg, config_origin)
+    if cfg.objects is not None:
+        return _assemble_objects(
+            cfg,
+            device,
+            needs_grad,
+            init_backend=init_backend,
+            params_file=params_file,
+            estimate=estimate,
+            reference_image=reference_image,
+            stage=stage,
+            observer=observer,
+            announce=announce,
+            config_origin=config_origin,
+            on_scene=on_scene,
+            on_camera=on_camera,
+        )
     with stage("load scene"):
         from motionphysics.scene import load_scene
         from motionphysics.scene.prepare import prepare
@@ -904,3 +1193,255 @@ def assemble(
         observer=observer,
         reference_image=ref_np,
     )
+
+
+def split_config(cfg: RunConfig, origin: str = "<config>") -> RunConfig:
+    """``scene.split`` -> the same config with one ``objects:`` entry per part.
+
+    Each part keeps the scene keys (``split`` + ``part`` select its splats), gets the
+    ``material:`` block and a share of ``scene.max_particles`` proportional to its splats;
+    names come from ``scene.split_names`` or are ``part<id>``."""
+    from motionphysics.scene import load_scene
+    from motionphysics.scene.split import part_labels
+
+    sc = cfg.scene
+    scene = load_scene(sc.source, shade=sc.shade)
+    labels = part_labels(scene, sc.source, sc.split, sc.split_property)
+    parts, counts = np.unique(labels, return_counts=True)
+    if sc.split_names is not None and len(sc.split_names) != len(parts):
+        raise UserInputError(
+            f"scene.split_names: {len(sc.split_names)} names for the {len(parts)} parts "
+            f"{sc.source} splits into by {sc.split}"
+        )
+    names = sc.split_names or [f"part{int(p)}" for p in parts]
+    data = config_to_dict(cfg)
+    base = dict(data["scene"])
+    base.pop("split_names")
+    total = int(counts.sum())
+    data["objects"] = [
+        {
+            **base,
+            "name": name,
+            "part": int(p),
+            "max_particles": max(1, round(sc.max_particles * int(c) / total)),
+            "material": data["material"],
+        }
+        for name, p, c in zip(names, parts, counts, strict=True)
+    ]
+    data.pop("scene")
+    data.pop("material")
+    return config_from_dict(data, origin)
+
+
+def _assemble_objects(
+    cfg: RunConfig,
+    device: str,
+    needs_grad: bool,
+    *,
+    init_backend: str,
+    params_file,
+    estimate: bool,
+    reference_image: bool,
+    stage,
+    observer,
+    announce: bool,
+    config_origin: str,
+    on_scene,
+    on_camera,
+) -> Assembly:
+    """:func:`assemble` for ``objects:``: each object loaded and prepared with its own scene
+    keys onto one grid (:func:`scene.prepare.prepare_objects`), one estimate per object from
+    the one prompt (``init.estimate_objects``), each object's material resolved from its
+    own ``material:`` block like a single object's."""
+    from motionphysics.render.camera import camera_from_config
+    from motionphysics.scene import load_scene
+    from motionphysics.scene.prepare import prepare_objects
+
+    if params_file is not None:
+        raise UserInputError(
+            "--params: a params file holds one material; with objects: give each object's "
+            "material: block in the config instead"
+        )
+    ocfgs = cfg.object_configs()
+    names = [o.name for o in ocfgs]
+    with stage("load scene"):
+        loaded: dict[tuple[str, bool], Any] = {}
+        scenes = []
+        for i, o in enumerate(ocfgs):
+            key = (o.source, o.shade)
+            if key not in loaded:
+                loaded[key] = load_scene(o.source, shade=o.shade)
+            scene = loaded[key]
+            if o.split is not None:
+                from motionphysics.scene.split import select_part
+
+                scene = select_part(
+                    scene, o.source, o.split, o.part, o.split_property, f"objects[{i}].part"
+                )
+            scenes.append(scene)
+        classes = [o.material.class_ for o in ocfgs]
+        sim_scene = prepare_objects(
+            scenes, ocfgs, cfg.sim, list(cfg.boundary_conditions), list(cfg.forces), classes
+        )
+        counts = np.bincount(_np(sim_scene.object_id).astype(np.int64), minlength=len(ocfgs))
+        observer.message(
+            "info",
+            f"scene: {len(ocfgs)} objects, {sim_scene.splats.num} splats, "
+            + ", ".join(f"{n} {int(c)} particles" for n, c in zip(names, counts, strict=True)),
+        )
+        if on_scene is not None:
+            on_scene(sim_scene)
+
+    one = [object_config(cfg, o) for o in ocfgs]
+    need = [estimate and not material_complete(c) for c in one]
+    ref_np = None
+    with stage("reference render"):
+        cfg, cam_note = resolve_camera(cfg, sim_scene)
+        camera = camera_from_config(cfg.camera)
+        background = tuple(float(v) for v in cfg.camera.background)
+        ground = ground_splats(cfg, sim_scene)
+        if reference_image or any(need):
+            ref_np = _render_reference(sim_scene, camera, background, ground)
+        if on_camera is not None:
+            on_camera(cfg, cam_note, ref_np)
+
+    ests: list[dict[str, Any] | None] = [None] * len(ocfgs)
+    if any(need):
+        with stage("estimate material"):
+            asked = [n for n, want in zip(names, need, strict=True) if want]
+            got = dict(
+                zip(
+                    asked,
+                    estimate_objects(cfg.prompt, asked, ref_np, init_backend, announce),
+                    strict=True,
+                )
+            )
+            ests = [got.get(n) for n in names]
+            observer.message(
+                "info",
+                f"estimate ({init_backend}): "
+                + ", ".join(f"{n}: {e['class']}" for n, e in got.items()),
+            )
+    with stage("resolve material"):
+        materials, provs = [], []
+        for name, ocfg1, est in zip(names, one, ests, strict=True):
+            try:
+                res = resolve_material(ocfg1, est, None)
+            except UserInputError as err:
+                raise UserInputError(f"objects[{name}].{err}") from None
+            materials.append(res["material"])
+            provs.append(
+                {
+                    "backend": est["backend"] if est else "config",
+                    "params_file": None,
+                    "raw_answer": est.get("raw") if est else None,
+                    "estimate": est.get("estimate") if est else None,
+                    "clamps": res["clamps"],
+                    "estimate_clamps": est.get("clamps", []) if est else [],
+                    "overrides": res["overrides"],
+                    "class_override": res["class_override"],
+                    "sources": res["sources"],
+                }
+            )
+        per, resolution = resolve_scene_simulation(cfg, sim_scene, materials, names)
+        objects = tuple(
+            ObjectPart(
+                name=name,
+                material=mat,
+                resolution=r,
+                provenance=prov,
+                initial_velocity=tuple(
+                    float(v)
+                    for v in (
+                        o.initial_velocity
+                        if o.initial_velocity is not None
+                        else cfg.sim.initial_velocity
+                    )
+                ),
+                count=int(c),
+            )
+            for name, mat, r, prov, o, c in zip(
+                names, materials, per, provs, ocfgs, counts, strict=True
+            )
+        )
+        backends = sorted({p["backend"] for p in provs})
+        provenance = {
+            "backend": backends[0] if len(backends) == 1 else ",".join(backends),
+            "params_file": None,
+            "objects": {name: prov for name, prov in zip(names, provs, strict=True)},
+        }
+        # run.yaml records each object's simulated material (re-running reproduces it)
+        data = config_to_dict(cfg)
+        for entry, mat in zip(data["objects"], materials, strict=True):
+            entry["material"] = {
+                "class": mat.cls,
+                "density": float(mat.density),
+                **{k: float(v) for k, v in mat.values.items()},
+            }
+        cfg = config_from_dict(data, config_origin)
+    material = SceneMaterial(objects, _np(sim_scene.object_id).astype(np.int64))
+    return Assembly(
+        cfg=cfg,
+        device=device,
+        needs_grad=needs_grad,
+        sim_scene=sim_scene,
+        camera=camera,
+        camera_note=cam_note,
+        background=background,
+        ground=ground,
+        material=material,
+        provenance=provenance,
+        resolution=resolution,
+        observer=observer,
+        reference_image=ref_np,
+        objects=objects,
+    )
+
+
+class ObjectsSimulator:
+    """The differentiable simulator of a scene of several objects: one parameter vector
+    per object.
+
+    ``simulate(per_object_sim, initial_velocity, frames, grad_mode, window)`` takes one
+    ``{name: 0-dim tensor}`` of simulation values per object (in object order) and
+    spreads them over that object's particles (:func:`sim.per_object`), so gradients
+    reach each object's own values; ``initial_velocity``: [3], [P, 3] or None (each
+    object's own). Returns ``(xs [S,P,3], Fs [S,P,3,3])`` torch float32.
+    """
+
+    def __init__(self, assembly: Assembly, num_frames: int):
+        self.assembly = assembly
+        self.simulation = assembly.simulation
+        self.num_particles = int(self.simulation.model.particle_count)
+        self.num_frames = int(num_frames)
+        self.object_id = _np(assembly.sim_scene.object_id).astype(np.int64)
+
+    @property
+    def substeps(self) -> int:
+        return int(self.simulation.substeps)
+
+    def simulate(self, per_object_sim, initial_velocity, frames, grad_mode="full", window=8):
+        import torch
+
+        from motionphysics.sim.bridge import simulate
+        from motionphysics.sim.model import PARAM_NAMES
+
+        if len(per_object_sim) != len(self.assembly.objects):
+            raise ValueError(
+                f"{len(per_object_sim)} parameter sets for {len(self.assembly.objects)} objects"
+            )
+        params = {
+            k: v
+            for k, v in _per_particle_union(list(per_object_sim), self.object_id).items()
+            if k in PARAM_NAMES
+        }
+        if initial_velocity is None:
+            initial_velocity = torch.as_tensor(self.assembly.initial_velocity)
+        return simulate(
+            self.simulation,
+            params,
+            frames=frames,
+            initial_velocity=initial_velocity,
+            grad_mode=grad_mode,
+            window=window,
+        )

@@ -56,6 +56,18 @@ class SceneConfig(_Strict):
     shade: bool = True
     """Bake a default-light shading into the colours of a mesh that has no colours or
     texture (scene.mesh); false: flat mid grey."""
+    split: Literal["label", "components"] | None = None
+    """Split one 3DGS scene into objects: by the per-splat integer property
+    ``split_property`` of the .ply (``label``) or by connected components of the splat
+    centres (``components``, largest first); each part becomes an object (see
+    ``objects:``), named by ``split_names`` or ``part<id>``."""
+    split_property: str = "label"
+    """The per-splat .ply property ``split: label`` reads."""
+    split_names: list[str] | None = None
+    """Names of the parts in order (labels ascending, components by size)."""
+    part: int | None = None
+    """With ``split`` inside an ``objects:`` entry: which part this object is (the label
+    value, or the component's rank by size, 0 = largest)."""
 
     @field_validator("crop")
     @classmethod
@@ -436,6 +448,22 @@ class OptimizeConfig(_Strict):
         return [LossSpec(type=self.loss or DEFAULT_LOSS)]
 
 
+MAX_OBJECTS = 8
+"""Most objects one scene may hold (the simulator keeps one grid velocity field each)."""
+
+
+class ObjectConfig(SceneConfig):
+    """One object of a scene of several (``objects:``): its own scene keys, material and
+    initial velocity. ``max_particles`` is this object's share of the particles."""
+
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z][A-Za-z0-9 _-]*$")
+    """What the object is called; the init backends look for it in the prompt."""
+    material: MaterialConfig = MaterialConfig()
+    """Given fields override the estimate for this object."""
+    initial_velocity: Vec3 | None = None
+    """Initial velocity of this object's particles [m/s] (absent: ``sim.initial_velocity``)."""
+
+
 class RunConfig(_Strict):
     scene: SceneConfig = SceneConfig()
     prompt: str = "An elastic ball hits the ground and bounces back."
@@ -452,6 +480,57 @@ class RunConfig(_Strict):
     """Write INRIA-format splats per frame to ``splats/``."""
     versions: dict[str, str] = {}
     """Informational: package versions that wrote this config (run.yaml); ignored on input."""
+    objects: list[ObjectConfig] | None = None
+    """Several objects, each with its own scene keys, ``material:`` and ``initial_velocity``
+    (null: the one object of ``scene:`` + ``material:``). With ``objects:`` the ``scene:``
+    and ``material:`` blocks must be left out."""
+
+    @model_validator(mode="after")
+    def _objects_or_scene(self):
+        several = self.objects is not None or self.scene.split is not None
+        if several and (self.optimize.prior != "none" or self.optimize.losses):
+            # (the differentiable simulator of several objects exists:
+            # assembly.ObjectsSimulator; the refinement loop is not wired to it yet)
+            raise ValueError(
+                "optimize.prior: refining the materials of several objects (objects: or "
+                "scene.split) is not available yet; use prior: none"
+            )
+        if self.objects is None:
+            if self.scene.part is not None:
+                raise ValueError("scene.part: only inside an objects: entry (with split)")
+            return self
+        if not self.objects:
+            raise ValueError("objects: expected a list of at least one {name, source, ...} entry")
+        if len(self.objects) > MAX_OBJECTS:
+            raise ValueError(f"objects: at most {MAX_OBJECTS} objects, got {len(self.objects)}")
+        for i, o in enumerate(self.objects):
+            if (o.split is None) != (o.part is None):
+                raise ValueError(
+                    f"objects[{i}]: split and part go together (which part of the split scene)"
+                )
+            if o.split_names is not None:
+                raise ValueError(f"objects[{i}].split_names: name the object with name:")
+        names = [o.name for o in self.objects]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"objects: names must differ, {', '.join(dup)} given twice")
+        # run.yaml holds the default blocks; anything else beside ``objects:`` is ambiguous
+        if self.scene != SceneConfig() or self.material != MaterialConfig():
+            raise ValueError(
+                "objects: give each object's scene keys and material inside its entry, not "
+                "in scene: / material: beside objects:"
+            )
+        return self
+
+    def object_configs(self) -> list[ObjectConfig]:
+        """The objects of the scene: ``objects:``, or the one of ``scene:`` + ``material:``."""
+        if self.objects is not None:
+            return list(self.objects)
+        return [
+            ObjectConfig(
+                name="object", material=self.material, **self.scene.model_dump(by_alias=True)
+            )
+        ]
 
 
 # --- error messages ---------------------------------------------------------------------

@@ -213,7 +213,16 @@ def run_pipeline(
 
         # ---- outputs -------------------------------------------------------------------
         with writer.stage("write outputs"):
-            writer.write_outputs(parts.sim_scene, xs, Fs, vs, video, cfg, material)
+            writer.write_outputs(
+                parts.sim_scene,
+                xs,
+                Fs,
+                vs,
+                video,
+                cfg,
+                material,
+                active=getattr(parts.last_rollout, "active", None),
+            )
         if cfg.export_ply:
             with writer.stage("export splats", total=frames) as st:
                 writer.export_splats(parts.sim_scene, xs, Fs, on_frame=st.advance)

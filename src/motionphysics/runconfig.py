@@ -58,6 +58,11 @@ def resolve_paths(data: dict[str, Any], base: Path | None) -> dict[str, Any]:
         sec = data.get(section)
         if isinstance(sec, dict) and key in sec:
             sec[key] = fix(sec[key])
+    objects = data.get("objects")
+    if isinstance(objects, list):  # each object's own scene.source
+        for obj in objects:
+            if isinstance(obj, dict) and "source" in obj:
+                obj["source"] = fix(obj["source"])
     return data
 
 

@@ -11,6 +11,7 @@ from motionphysics.init.estimate import (
     MaterialEstimate,
     estimate,
     estimate_many,
+    estimate_objects,
 )
 from motionphysics.init.llm import LLMError, LLMOptions
 from motionphysics.registry import Registry
@@ -30,6 +31,7 @@ __all__ = [
     "MaterialEstimate",
     "estimate",
     "estimate_many",
+    "estimate_objects",
     "LLMError",
     "LLMOptions",
 ]

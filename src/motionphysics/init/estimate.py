@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import io
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -28,6 +28,8 @@ __all__ = [
     "MaterialEstimate",
     "estimate",
     "estimate_many",
+    "estimate_objects",
+    "object_phrase",
     "check_prompt",
     "load_image_png",
 ]
@@ -280,6 +282,168 @@ def estimate_many(
                 [],
                 text,
                 "LLM answer" + (" with ranges" if backend == "llm" else " without ranges (naive)"),
+            )
+        )
+    return out
+
+
+# --- several objects of one prompt -------------------------------------------------------
+
+# Words that end an object's phrase when walking back from its name ("a steel axe
+# FALLS ONTO a rubber duck"): conjunctions, prepositions, common motion verbs, clause
+# punctuation. Determiners are kept and stop the walk ("a", "the").
+_PHRASE_STOP = frozenset(
+    "and or but while as then onto on into in at to from with without against over under "
+    "beside behind through across by near toward towards off falls fall falling drops drop "
+    "dropped dropping hits hit hitting lands land landing slides slide rolls roll bounces "
+    "bounce is are was were sits sit rests rest lies lie crashes crash strikes strike "
+    "collides collide meets meet pushes push thrown throws thrown smashes smash".split()
+)
+_DETERMINERS = frozenset("a an the one two some this that his her its their my our".split())
+_PHRASE_BACK = 4
+"""Most words before an object's name that describe it ("a big shiny steel axe")."""
+
+
+def _words(text: str) -> list[tuple[str, int, int]]:
+    import re
+
+    return [
+        (m.group(0), m.start(), m.end()) for m in re.finditer(r"[A-Za-z0-9'’-]+|[,;.:!?]", text)
+    ]
+
+
+def _name_forms(name: str, synonyms: tuple[str, ...] = ()) -> list[list[str]]:
+    """Token sequences that name an object: its name (``_``/``-`` as blanks) and
+    synonyms, compared through the kb's plural-insensitive tokenizer."""
+    from motionphysics.init.kb import tokenize
+
+    forms = [tokenize(n.replace("_", " ").replace("-", " ")) for n in (name, *synonyms)]
+    return [f for f in forms if f]
+
+
+def _synonyms(name: str) -> tuple[str, ...]:
+    """Other words the kb has for object ``name``: the aliases of the entry called so, and
+    of entries whose name ends with it ("duck" -> "rubber duck", "rubber ducky"); the
+    aliases of an entry that merely lists the name among many (a generic "animal
+    figure" lists "duck" and "cat") are not synonyms."""
+    from motionphysics.init.kb import load_kb, tokenize
+
+    want = tokenize(name.replace("_", " "))
+    out: list[str] = []
+    for e in load_kb().entries:
+        own = tokenize(e.name)
+        if own == want or (len(own) > len(want) and own[-len(want) :] == want):
+            out.extend(t for t in e.texts if tokenize(t) != want)
+    return tuple(dict.fromkeys(out))
+
+
+def object_phrase(prompt: str, name: str, synonyms: tuple[str, ...] = ()) -> str | None:
+    """The words of ``prompt`` that describe object ``name`` ("a steel axe falls onto a
+    rubber duck", "axe" -> "a steel axe"), or None when neither the name nor a synonym
+    occurs. The phrase runs from a determiner or stop word before the name (at most
+    ``_PHRASE_BACK`` words back) to the name, plus a following ``made of X`` / ``of X``.
+    """
+    from motionphysics.init.kb import tokenize
+
+    words = _words(prompt)
+    toks = [tokenize(w)[0] if tokenize(w) else w for w, _, _ in words]
+    # the name itself first; a synonym only when the prompt does not use the name
+    own = _name_forms(name)
+    others = sorted(_name_forms("", synonyms), key=len, reverse=True)
+    for form in own + others:
+        n = len(form)
+        for i in range(len(toks) - n + 1):
+            if toks[i : i + n] != form:
+                continue
+            start = i
+            for j in range(i - 1, max(-1, i - 1 - _PHRASE_BACK), -1):
+                w = words[j][0].lower()
+                if w in _PHRASE_STOP or not w[0].isalnum():
+                    break
+                start = j
+                if w in _DETERMINERS:
+                    break
+            end = i + n
+            rest = [w.lower() for w, _, _ in words[end : end + 2]]
+            if rest[:2] == ["made", "of"] or rest[:1] == ["of"]:
+                end += 2 if rest[0] == "made" else 1
+                while end < len(words) and words[end][0][0].isalnum():
+                    w = words[end][0].lower()
+                    if w in _PHRASE_STOP:
+                        break
+                    end += 1
+            return prompt[words[start][1] : words[end - 1][2]]
+    return None
+
+
+def estimate_objects(
+    prompt: str,
+    names: list[str],
+    image: Any = None,
+    backend: Backend = "kb",
+    options: EstimateOptions | None = None,
+) -> list[MaterialEstimate]:
+    """One estimate per object of one ``prompt`` (in ``names`` order).
+
+    kb / median: each object's phrase (:func:`object_phrase`, by its name and the kb's
+    synonyms) is estimated on its own; an object the prompt does not name falls back to
+    the whole sentence with a warning naming it. llm / naive: one request listing the
+    object names, one JSON answer per name (:func:`init.llm.ask_objects`), each
+    range-checked and clamped as a single answer.
+    """
+    opts = options or EstimateOptions()
+    backend = _check_backend(backend)
+    text = check_prompt(prompt)
+    if not names:
+        return []
+    if backend in ("kb", "median"):
+        phrases, notes = [], []
+        for name in names:
+            phrase = object_phrase(text, name, _synonyms(name))
+            if phrase is None:
+                notes.append(
+                    f"{backend}: object {name!r} is not named in the prompt; its material is "
+                    "estimated from the whole sentence (name the object in the prompt, or give "
+                    f"objects[{name}].material)"
+                )
+                phrases.append(text)
+            else:
+                notes.append(None)
+                phrases.append(phrase)
+        ests = estimate_many(phrases, image if backend != "kb" else None, backend, opts)
+        out = []
+        for est, note in zip(ests, notes, strict=True):
+            warnings = ([note] if note else []) + list(est.warnings)
+            out.append(replace(est, warnings=warnings))
+        if opts.announce:
+            import sys
+
+            for w in (n for n in notes if n):
+                print(f"motionphysics: warning: {w}", file=sys.stderr)
+        return out
+    from motionphysics.init.llm import ask_objects
+
+    png = load_image_png(image) if image is not None else None
+    answers = ask_objects(
+        text, list(names), png, opts.llm, ranged=(backend == "llm"), announce=opts.announce
+    )
+    out = []
+    for name in names:
+        ans = answers[name]
+        raw = "\n\n--- re-asked ---\n\n".join(ans.raw_answers)
+        out.append(
+            MaterialEstimate(
+                ans.params.cls,
+                ans.params.density,
+                dict(ans.params.values),
+                backend,
+                None,
+                list(ans.clamped),
+                raw,
+                [],
+                text,
+                f"LLM answer for object {name!r}"
+                + (" with ranges" if backend == "llm" else " without ranges (naive)"),
             )
         )
     return out

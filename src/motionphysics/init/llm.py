@@ -359,3 +359,93 @@ def ask_material(
                 f"llm backend: no usable answer after one re-ask ({first}; then {second})"
             ) from None
     return LLMAnswer(params, clamps, raws, ignored)
+
+
+def _object_entry(obj: dict[str, Any], name: str) -> Any:
+    for key, value in obj.items():
+        if str(key).strip().lower() == name.lower():
+            return value
+    return None
+
+
+def _validated_objects(text: str, names: list[str], source: str):
+    """({name: (MaterialParams, clamps, ignored)} of the usable entries, {name: reason})."""
+    good: dict[str, Any] = {}
+    bad: dict[str, str] = {}
+    try:
+        obj = _extract_json(text)
+    except ValueError as err:
+        return good, {n: str(err) for n in names}
+    for name in names:
+        entry = _object_entry(obj, name)
+        if entry is None:
+            bad[name] = f'no answer for object "{name}"'
+            continue
+        if not isinstance(entry, dict):
+            bad[name] = f'the answer for object "{name}" is not a JSON object'
+            continue
+        try:
+            good[name] = _validated(json.dumps(entry), source)
+        except ValueError as err:
+            bad[name] = f'object "{name}": {err}'
+    return good, bad
+
+
+def ask_objects(
+    prompt: str,
+    names: list[str],
+    image_png: bytes | None = None,
+    options: LLMOptions | None = None,
+    ranged: bool = True,
+    announce: bool = False,
+    stream=None,
+    verbose: bool = False,
+) -> dict[str, LLMAnswer]:
+    """Ask once for the materials of several objects of one prompt: ``{name: LLMAnswer}``.
+
+    The inquiry lists the object names and asks for one JSON object per name; each is
+    validated and range-clamped as a one-object answer. Objects whose entry is missing
+    or unusable are re-asked once (the message names them); still missing then: LLMError
+    naming the objects.
+    """
+    import sys
+
+    from motionphysics.init.prompt import build_objects_messages
+
+    opts = (options or LLMOptions()).resolved()
+    source = "llm" if ranged else "naive"
+    client = make_client(opts)
+    messages = build_objects_messages(prompt, names, image_png, ranged=ranged)
+    out = stream or sys.stderr
+    where = opts.base_url or "the OpenAI API"
+    if announce and verbose:
+        print(
+            f"motionphysics: asking {opts.model} at {where} for {len(names)} objects, waiting "
+            f"up to {opts.timeout:g} s per request ...",
+            file=out,
+            flush=True,
+        )
+    first = _chat(client, opts, messages)
+    raws = [first]
+    good, bad = _validated_objects(first, names, source)
+    if bad:
+        reasons = "; ".join(bad.values())
+        messages = [
+            *messages,
+            {"role": "assistant", "content": first},
+            repair_message(
+                f"{reasons}. Give a JSON object with one entry for each of "
+                + ", ".join(f'"{n}"' for n in names)
+            ),
+        ]
+        second = _chat(client, opts, messages)
+        raws.append(second)
+        good2, bad2 = _validated_objects(second, list(bad), source)
+        good.update(good2)
+        if bad2:
+            raise LLMError(
+                "llm backend: no usable answer for "
+                + ", ".join(f'object "{n}"' for n in bad2)
+                + f" after one re-ask ({'; '.join(bad2.values())})"
+            )
+    return {n: LLMAnswer(good[n][0], good[n][1], list(raws), good[n][2]) for n in names}

@@ -120,3 +120,36 @@ def repair_message(error: str) -> dict:
             + " and every required parameter of that type as a number."
         ),
     }
+
+
+def build_objects_prompt(
+    text: str, names: list[str], ranged: bool = True, has_image: bool = False
+) -> str:
+    """The inquiry for a scene of several objects: the one-object inquiry, asking for one
+    JSON object per object name (keys: the names, exactly as given)."""
+    base = build_prompt(text, ranged=ranged, has_image=has_image)
+    listed = ", ".join(f'"{n}"' for n in names)
+    example = (
+        "{\n"
+        + ",\n".join(f'  "{n}": {{"material_type": "...", "density": ...}}' for n in names)
+        + "\n}"
+    )
+    return (
+        base
+        + "\n\nThe scene holds several objects, each of its own material: "
+        + listed
+        + ". Determine the material of each object from the part of the prompt that "
+        "describes it. Respond with a single JSON object whose keys are exactly these "
+        "object names, each mapping to one answer in the format above, e.g.\n" + example
+    )
+
+
+def build_objects_messages(
+    text: str, names: list[str], image_png: bytes | None = None, ranged: bool = True
+) -> list[dict]:
+    """Chat messages of :func:`build_objects_prompt` (system, inquiry + optional image)."""
+    inquiry = build_objects_prompt(text, names, ranged=ranged, has_image=image_png is not None)
+    content: Any = (
+        inquiry if image_png is None else [{"type": "text", "text": inquiry}, image_part(image_png)]
+    )
+    return [{"role": "system", "content": SYSTEM_MESSAGE}, {"role": "user", "content": content}]

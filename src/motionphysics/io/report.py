@@ -141,14 +141,21 @@ def render_report(
         )
 
     out.append("<h2>Material</h2>")
+    if params.get("objects"):
+        out += _objects_table(params["objects"], e)
     cls = params.get("class", "?")
     prov = params.get("provenance", {}) or {}
-    out.append(
-        f"<p>Class <b>{e(str(cls))}</b>; estimated by <b>{e(str(prov.get('backend', '?')))}</b>"
-        + (" (class set by the config)" if prov.get("class_override") else "")
-        + ".</p>"
+    if not params.get("objects"):
+        out.append(
+            f"<p>Class <b>{e(str(cls))}</b>; estimated by <b>{e(str(prov.get('backend', '?')))}</b>"
+            + (" (class set by the config)" if prov.get("class_override") else "")
+            + ".</p>"
+        )
+    phys = (
+        {}
+        if params.get("objects")
+        else {"density": params.get("density"), **(params.get("params") or {})}
     )
-    phys = {"density": params.get("density"), **(params.get("params") or {})}
     sim = params.get("sim") or {}
     sources = prov.get("sources") or {}
     out.append(
@@ -221,6 +228,25 @@ def render_report(
     out.extend(sections)  # extra HTML fragments (the optimisation section)
     out.append("</body></html>")
     return "\n".join(out) + "\n"
+
+
+def _objects_table(objects, e) -> list[str]:
+    """One row per object of a scene of several: name, class, backend, density, parameters."""
+    rows = [
+        "<table><tr><th>object</th><th>class</th><th>from</th><th>particles</th>"
+        "<th>density (kg/m³)</th><th>parameters (SI)</th><th>simulation values</th></tr>"
+    ]
+    for o in objects:
+        prov = o.get("provenance") or {}
+        phys = ", ".join(f"{e(k)} = {_fmt(v)}" for k, v in (o.get("params") or {}).items())
+        sim = ", ".join(f"{e(k)} = {_fmt(v)}" for k, v in (o.get("sim") or {}).items())
+        rows.append(
+            f"<tr><td>{e(str(o.get('name')))}</td><td>{e(str(o.get('class')))}</td>"
+            f"<td>{e(str(prov.get('backend', '?')))}</td><td class='num'>{o.get('particles')}</td>"
+            f"<td class='num'>{_fmt(o.get('density'))}</td><td>{phys}</td><td>{sim}</td></tr>"
+        )
+    rows.append("</table>")
+    return rows
 
 
 def write_report(rundir, params: Mapping[str, Any], **kwargs: Any) -> Path:

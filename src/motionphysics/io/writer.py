@@ -72,6 +72,7 @@ PARAMS_KEYS = (
     "units",
     "sim",
     "sim_context",
+    "objects",
     "provenance",
     "initial",
     "history",
@@ -99,6 +100,12 @@ UNITS = {
     "n": "-",
 }
 """SI unit of each physical parameter (``params.json``: ``units``)."""
+
+
+def _class_id(cls: str) -> int:
+    from motionphysics.materials.catalog import class_id
+
+    return class_id(cls)
 
 
 def _np(a) -> np.ndarray:
@@ -328,8 +335,9 @@ class RunWriter:
         """``scene`` block of params.json and ``scene.ply`` (prepared rest splats)."""
         from motionphysics.scene.ply import write_ply
 
+        objects = getattr(cfg, "objects", None)
         self.state["scene"] = {
-            "source": cfg.scene.source,
+            "source": cfg.scene.source if objects is None else [o.source for o in objects],
             "splats": int(sim_scene.splats.num),
             "particles": int(_np(sim_scene.particles).shape[0]),
             "interior_particles": int(getattr(sim_scene, "n_interior", 0)),
@@ -338,6 +346,12 @@ class RunWriter:
             "dx": float(sim_scene.dx),
             "grid_dims": [int(v) for v in sim_scene.grid_dims],
         }
+        if objects is not None and getattr(sim_scene, "object_id", None) is not None:
+            counts = np.bincount(_np(sim_scene.object_id).astype(np.int64), minlength=len(objects))
+            self.state["scene"]["objects"] = [
+                {"name": o.name, "source": o.source, "particles": int(c)}
+                for o, c in zip(objects, counts, strict=True)
+            ]
         with self.rd.writing("scene.ply") as tmp:
             write_ply(sim_scene.splats, tmp)
         self.add_files("scene.ply")
@@ -356,8 +370,17 @@ class RunWriter:
     def record_material(
         self, material, sim_values: Mapping[str, Any], sim_context: Mapping[str, Any]
     ) -> None:
-        """``class``, ``density``, ``params``, ``units``, ``sim``, ``sim_context``."""
+        """``class``, ``density``, ``params``, ``units``, ``sim``, ``sim_context``.
+
+        Several objects (``material`` an ``assembly.SceneMaterial``): ``objects: [{name,
+        class, class_id, density, params, sim, provenance, particles, initial_velocity}]``
+        and the top-level ``class``, ``class_id``, ``density``, ``params`` and ``sim`` null
+        (there is no one material); one object: ``objects`` null, layout unchanged."""
         from motionphysics.materials.catalog import class_id
+
+        if getattr(material, "objects", None) is not None:
+            self._record_objects(material, sim_context)
+            return
 
         def j(v):
             a = _np(v).astype(np.float64)
@@ -374,6 +397,40 @@ class RunWriter:
                 "units": {k: UNITS.get(k, "") for k in ("density", *material.values)},
                 "sim": {k: j(v) for k, v in sim_values.items()},
                 "sim_context": dict(sim_context),
+            }
+        )
+
+    def _record_objects(self, material, sim_context: Mapping[str, Any]) -> None:
+        objs = []
+        names: list[str] = []
+        for o in material.objects:
+            m = o.material
+            objs.append(
+                {
+                    "name": o.name,
+                    "class": m.cls,
+                    "class_id": int(_class_id(m.cls)),
+                    "density": float(m.density),
+                    "params": {k: float(v) for k, v in m.values.items()},
+                    "units": {k: UNITS.get(k, "") for k in ("density", *m.values)},
+                    "sim": {k: float(v) for k, v in o.resolution.values.items()},
+                    "sim_context": o.resolution.record(),
+                    "provenance": o.provenance,
+                    "particles": int(o.count),
+                    "initial_velocity": [float(v) for v in o.initial_velocity],
+                }
+            )
+            names += [k for k in ("density", *m.values) if k not in names]
+        self.state.update(
+            {
+                "class": None,
+                "class_id": None,
+                "density": None,
+                "params": None,
+                "units": {k: UNITS.get(k, "") for k in names},
+                "sim": None,
+                "sim_context": dict(sim_context),
+                "objects": objs,
             }
         )
 
@@ -394,14 +451,33 @@ class RunWriter:
             write_video(video, tmp, _fps(frame_dt))
         self.add_files(name)
 
-    def write_trajectory(self, sim_scene, xs, Fs, vs, cfg, density) -> dict[str, np.ndarray]:
+    def write_trajectory(
+        self, sim_scene, xs, Fs, vs, cfg, density, active=None
+    ) -> dict[str, np.ndarray]:
         """``trajectory.npz`` (x, t, F, v, masses, volumes, and what re-deforming the
-        splats of ``scene.ply`` needs: splat_parent, splat_offset); returns it read back."""
+        splats of ``scene.ply`` needs: splat_parent, splat_offset); returns it read back.
+
+        ``density``: kg/m^3, scalar or per particle [P]. Several objects
+        (``sim_scene.object_id`` set): also ``object_id [P]`` int64, ``object_names [K]``,
+        ``object_mass [K]`` kg. ``active [T, P]`` (the rollout's mask, 0 = removed by a
+        cut) is written when given."""
         from motionphysics.io.rundir import read_trajectory, write_trajectory
 
         frames = xs.shape[0]
         volumes = np.asarray(_np(sim_scene.volumes), dtype=np.float64)
         mass = volumes * np.asarray(_np(density), dtype=np.float64)
+        extra: dict[str, np.ndarray] = {}
+        oid = getattr(sim_scene, "object_id", None)
+        if oid is not None:
+            oid = _np(oid).astype(np.int64)
+            k = int(oid.max()) + 1
+            extra["object_id"] = oid
+            extra["object_mass"] = np.bincount(oid, weights=mass, minlength=k).astype(np.float64)
+            names = [o.name for o in (getattr(cfg, "objects", None) or [])]
+            if len(names) == k:
+                extra["object_names"] = np.asarray(names, dtype=str)
+        if active is not None:
+            extra["active"] = np.asarray(active, dtype=np.float32)
         write_trajectory(
             self.rd.file("trajectory.npz"),
             x=xs,
@@ -418,6 +494,7 @@ class RunWriter:
             domain_hi=_np(sim_scene.domain_hi).astype(np.float32),
             dx=np.float32(sim_scene.dx),
             frame_dt=np.float32(cfg.sim.frame_dt),
+            **extra,
         )
         self.add_files("trajectory.npz")
         return read_trajectory(self.path / "trajectory.npz")
@@ -448,12 +525,25 @@ class RunWriter:
             )
             if k in metrics
         }
+        if metrics.get("objects"):  # the same headline values of each object
+            self.state["metrics"]["objects"] = {
+                name: {
+                    k: m[k]
+                    for k in ("final_height_ratio", "spread_ratio", "max_displacement")
+                    if k in m
+                }
+                for name, m in metrics["objects"].items()
+            }
         self.add_files("metrics.json")
         return metrics
 
-    def write_outputs(self, sim_scene, xs, Fs, vs, video, cfg, material) -> dict[str, Any]:
-        """trajectory.npz, metrics.json and every plot; returns the metrics."""
-        traj = self.write_trajectory(sim_scene, xs, Fs, vs, cfg, material.density)
+    def write_outputs(
+        self, sim_scene, xs, Fs, vs, video, cfg, material, active=None
+    ) -> dict[str, Any]:
+        """trajectory.npz, metrics.json and every plot; returns the metrics.
+
+        ``active [T, P]``: the rollout's mask of simulated particles (``Assembly.last_rollout.active``)."""
+        traj = self.write_trajectory(sim_scene, xs, Fs, vs, cfg, material.density, active)
         metrics = self.write_metrics(traj, cfg)
         self.write_plots(video, traj, metrics, cfg)
         return metrics
@@ -658,18 +748,38 @@ def format_value(v: Any) -> str:
     return f"{v:.4g}" if (a == 0 or 1e-3 <= a < 1e5) else f"{v:.3e}"
 
 
+def _objects_summary(objects: list[dict[str, Any]]) -> list[str]:
+    """Summary lines of a scene of several objects: one line per object, then its values."""
+    lines = []
+    for o in objects:
+        prov = o.get("provenance") or {}
+        lines.append(
+            f"object:    {o.get('name')}: {o.get('class')} (from {prov.get('backend', '?')}), "
+            f"{o.get('particles')} particles"
+        )
+        sources = prov.get("sources") or {}
+        for name, value in {"density": o.get("density"), **(o.get("params") or {})}.items():
+            src = sources.get(name)
+            lines.append(f"  {name:<10} {format_value(value):>12}" + (f"  [{src}]" if src else ""))
+    return lines
+
+
 def summary_text(result: RunResult) -> str:
     """The final summary every command prints: material, parameters, video, timings."""
     p = result.params
     lines = [f"prompt:    {p.get('prompt', '')}"]
     prov = p.get("provenance") or {}
     est = prov.get("estimate") or {}
-    how = f"from {prov.get('backend', '?')}"
-    if est.get("confidence") is not None:
-        how += f", confidence {float(est['confidence']):.2f}"
-    if est.get("matched"):
-        how += f", matched {est['matched']!r}"
-    lines.append(f"material:  {p.get('class')} ({how})")
+    if p.get("objects"):
+        lines += _objects_summary(p["objects"])
+        prov = {}  # each object's provenance is in its own lines
+    else:
+        how = f"from {prov.get('backend', '?')}"
+        if est.get("confidence") is not None:
+            how += f", confidence {float(est['confidence']):.2f}"
+        if est.get("matched"):
+            how += f", matched {est['matched']!r}"
+        lines.append(f"material:  {p.get('class')} ({how})")
     sim = p.get("sim") or {}
     units = p.get("units") or {}
     initial = (p.get("initial") or {}).get("params") or {}
@@ -681,7 +791,8 @@ def summary_text(result: RunResult) -> str:
         sim_quantities(p["class"], {k: _mean(v) for k, v in sim.items()}) if p.get("class") else []
     )
     paired = {r["pairs_with"]: r for r in rows if r["pairs_with"]}
-    for name, value in {"density": p.get("density"), **(p.get("params") or {})}.items():
+    top = {} if p.get("objects") else {"density": p.get("density"), **(p.get("params") or {})}
+    for name, value in top.items():
         s = f"  {name:<10} {format_value(value):>12} {units.get(name, ''):<6}"
         if name in paired:
             s += f"  (simulation: {format_value(paired[name]['value'])})"

@@ -350,6 +350,8 @@ def physical_metrics(
     }
     if el is None:
         out["elastic_energy_reason"] = el_reason
+    if "object_id" in traj:  # (an object's own slice has none)
+        out.update(object_metrics(traj, floor=floor if floor_src.startswith("given") else None))
     if "det_F" in traj:
         J = np.asarray(traj["det_F"], dtype=np.float64).reshape(T, P)
         out["volume_ratio"] = {
@@ -362,3 +364,60 @@ def physical_metrics(
             "max_abs_deviation": float(np.abs(J - 1.0).max()),
         }
     return out
+
+
+_PER_PARTICLE = ("v", "det_F", "F", "volume", "mass", "active")
+"""Trajectory arrays with a particle axis (axis 1 for [T, P, ...], axis 0 for [P])."""
+
+
+def object_slices(traj: dict[str, np.ndarray]) -> list[tuple[str, dict[str, Any]]]:
+    """``[(name, trajectory of that object's particles)]`` of a trajectory with
+    ``object_id [P]`` (names from ``object_names [K]``, else ``object0`` ...)."""
+    oid = np.asarray(traj["object_id"]).astype(np.int64).reshape(-1)
+    k = int(oid.max()) + 1
+    names = [str(n) for n in np.asarray(traj.get("object_names", []))]
+    if len(names) != k:
+        names = [f"object{i}" for i in range(k)]
+    out = []
+    for i, name in enumerate(names):
+        sel = oid == i
+        sub: dict[str, Any] = {}
+        for key, value in traj.items():
+            if key in ("object_id", "object_names", "object_mass"):
+                continue
+            a = np.asarray(value)
+            if key == "x" or (key in _PER_PARTICLE and a.ndim >= 2 and a.shape[1] == oid.size):
+                sub[key] = a[:, sel]
+            elif key in _PER_PARTICLE and a.ndim == 1 and a.shape[0] == oid.size:
+                sub[key] = a[sel]
+            else:
+                sub[key] = value
+        out.append((name, sub))
+    return out
+
+
+def object_metrics(traj: dict[str, np.ndarray], floor: float | None = None) -> dict[str, Any]:
+    """Per-object diagnostics of a scene of several objects (``object_id [P]`` in ``traj``).
+
+    ``objects``: ``{name: physical_metrics of its particles}`` (the same keys as the
+    whole scene); ``object_centroid_distance``: ``{"a|b": [T] m}`` between the mass
+    centroids of every pair (contact: approach, then separation). ``floor`` [m] is shared
+    (None: the lowest point the whole scene reached, so every object uses the same one)."""
+    x = np.asarray(traj["x"], dtype=np.float64)
+    if floor is None:
+        up = up_axis(np.asarray(traj.get("gravity", (0.0, 0.0, -9.8)), dtype=np.float64))
+        floor = float(np.percentile(x @ up, 0.1, axis=1).min())
+    parts = object_slices(traj)
+    per = {name: physical_metrics(sub, floor=floor) for name, sub in parts}
+    cents = {}
+    for name, sub in parts:
+        xs = np.asarray(sub["x"], dtype=np.float64)
+        m = np.asarray(sub.get("mass", np.ones(xs.shape[1])), dtype=np.float64)
+        cents[name] = (m[None, :, None] * xs).sum(1) / m.sum()
+    names = list(cents)
+    dist = {
+        f"{a}|{b}": np.linalg.norm(cents[a] - cents[b], axis=-1).tolist()
+        for i, a in enumerate(names)
+        for b in names[i + 1 :]
+    }
+    return {"objects": per, "object_centroid_distance": dist}

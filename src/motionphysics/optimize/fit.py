@@ -175,6 +175,13 @@ def build_fit(
         on_camera=on_camera,
     )
     cfg = parts.cfg
+    if parts.objects is not None:
+        # (assembly.ObjectsSimulator is the differentiable simulator of several objects,
+        # one parameter vector each; this fit loop has one parameter vector)
+        raise UserInputError(
+            f"{config_origin}: objects: fitting the materials of several objects is not "
+            "available yet; fit one object at a time"
+        )
     names = optimised_names(cfg, parts.material.cls)
     num_frames = int(cfg.sim.frames)
     if reference.kind == "video":

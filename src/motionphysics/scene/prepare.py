@@ -33,6 +33,7 @@ from motionphysics.scene.gaussians import GaussianScene, quat_multiply, rotmat_t
 __all__ = [
     "SimScene",
     "prepare",
+    "prepare_objects",
     "transform_scene",
     "rotation_matrix",
     "regularise_anisotropy",
@@ -566,23 +567,10 @@ def stratified_subset(points: np.ndarray, k: int, rng: np.random.Generator) -> n
 # ---- the entry point -------------------------------------------------------------------------
 
 
-def prepare(
-    scene: GaussianScene,
-    scene_cfg: SceneConfig,
-    sim_cfg: SimConfig,
-    boundary_conditions: list | tuple = (),
-    forces: list | tuple = (),
-    material_class: str | None = None,
-) -> SimScene:
-    """Transform, filter and regularise ``scene``; fill it, size the grid, downsample.
+def _select_splats(scene: GaussianScene, scene_cfg: SceneConfig, origin_name: str):
+    """Steps 1-3: transform, opacity filter and crop, anisotropy regularisation.
 
-    See the module docstring for the order. Raises UserInputError when nothing is left
-    after the opacity filter and crop, or when a given ``sim.domain`` does not hold the
-    particles. A fitted domain leaves room for the motion the config implies
-    (:func:`motion_extent`: ``sim`` initial velocity and gravity over the simulated time,
-    ``forces``, and the spread of a ``material_class`` fluid or sand).
-    """
-    origin_name = scene_cfg.source
+    Returns (splats, source_to_world [4,4] float64 ndarray)."""
     scene.validate(origin_name)
     splats, m = transform_scene(scene, scene_cfg.scale, scene_cfg.rotate, scene_cfg.translate)
 
@@ -611,30 +599,20 @@ def prepare(
         raise UserInputError(
             f"{origin_name}: no splats left to simulate ({where}); lower the threshold or widen the crop"
         )
-    splats = regularise_anisotropy(splats.subset(keep), scene_cfg.max_anisotropy)
+    return regularise_anisotropy(splats.subset(keep), scene_cfg.max_anisotropy), m
 
-    vis = splats.means.double().numpy()  # (N,3)
+
+def _fallback_extent(splats: GaussianScene) -> float:
     big = float(splats.scales.max())
-    fallback = max(4.0 * big, 1e-3) if math.isfinite(big) else 1e-3
-    if sim_cfg.domain is not None:
-        dx, wall_lo, wall_hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
-        keep_dims = None
-    else:
-        motion = motion_extent(
-            sim_cfg,
-            forces,
-            boundary_conditions,
-            material_class,
-            height=_height(vis, sim_cfg.gravity),
-        )
-        lo, dx, keep_dims, hi = fit_domain(
-            vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback, motion=motion
-        )
-        # the material box: the fitted box without the solver's padding cells
-        wall_lo, wall_hi = lo + PAD_CELLS * dx, hi - PAD_CELLS * dx
-    targets = _wall_targets(wall_lo, wall_hi, boundary_conditions)
-    lo, dims, hi, wall_hi = _aligned_grid(wall_lo, wall_hi, dx, targets, keep_dims)
+    return max(4.0 * big, 1e-3) if math.isfinite(big) else 1e-3
 
+
+def _particles_at(splats: GaussianScene, scene_cfg: SceneConfig, lo: np.ndarray, dx: float):
+    """Steps 5-7 on the grid (``lo``, ``dx``): voxelise, fill, volumes, downsample.
+
+    Returns (particles [P,3] float64, volumes [P], n_interior, splat_parent [N] int,
+    total_volume); particles are visible-derived first, then interior fill."""
+    vis = splats.means.double().numpy()  # (N,3)
     # Voxel box: cells aligned with the domain's grid around the particles, with a free
     # margin so that the outside is connected around the object (it may poke out of the
     # domain: only the interior, which lies within the particles' hull, is used).
@@ -683,6 +661,48 @@ def prepare(
         parent[lost] = near[np.searchsorted(dropped, np.nonzero(lost)[0])]
         particles, volumes = particles[kept], new_volumes
         n_int = int((kept >= n_vis).sum())
+    return particles, volumes, int(n_int), parent, total_volume
+
+
+def prepare(
+    scene: GaussianScene,
+    scene_cfg: SceneConfig,
+    sim_cfg: SimConfig,
+    boundary_conditions: list | tuple = (),
+    forces: list | tuple = (),
+    material_class: str | None = None,
+) -> SimScene:
+    """Transform, filter and regularise ``scene``; fill it, size the grid, downsample.
+
+    See the module docstring for the order. Raises UserInputError when nothing is left
+    after the opacity filter and crop, or when a given ``sim.domain`` does not hold the
+    particles. A fitted domain leaves room for the motion the config implies
+    (:func:`motion_extent`: ``sim`` initial velocity and gravity over the simulated time,
+    ``forces``, and the spread of a ``material_class`` fluid or sand).
+    """
+    splats, m = _select_splats(scene, scene_cfg, scene_cfg.source)
+    vis = splats.means.double().numpy()  # (N,3)
+    fallback = _fallback_extent(splats)
+    if sim_cfg.domain is not None:
+        dx, wall_lo, wall_hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
+        keep_dims = None
+    else:
+        motion = motion_extent(
+            sim_cfg,
+            forces,
+            boundary_conditions,
+            material_class,
+            height=_height(vis, sim_cfg.gravity),
+        )
+        lo, dx, keep_dims, hi = fit_domain(
+            vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback, motion=motion
+        )
+        # the material box: the fitted box without the solver's padding cells
+        wall_lo, wall_hi = lo + PAD_CELLS * dx, hi - PAD_CELLS * dx
+    targets = _wall_targets(wall_lo, wall_hi, boundary_conditions)
+    lo, dims, hi, wall_hi = _aligned_grid(wall_lo, wall_hi, dx, targets, keep_dims)
+
+    particles, volumes, n_int, parent, total_volume = _particles_at(splats, scene_cfg, lo, dx)
     offset = vis - particles[parent]
 
     return SimScene(
@@ -700,4 +720,141 @@ def prepare(
         total_volume=total_volume,
         wall_lo=torch.from_numpy(np.asarray(wall_lo, dtype=np.float64)).float(),
         wall_hi=torch.from_numpy(np.asarray(wall_hi, dtype=np.float64)).float(),
+    )
+
+
+def _grown_box(points, sim_cfg, forces, boundary_conditions, material_class, velocity, fallback):
+    """The box [lo (3,), hi (3,)] of ``points`` grown by the motion one object may make
+    (:func:`motion_extent` with its own initial ``velocity``; capped at ``MOTION_CAP``
+    extents per side and stopped at the axis-aligned collider planes it faces), as
+    :func:`fit_domain` grows a single object's box."""
+    own = sim_cfg.model_copy(update={"initial_velocity": tuple(float(v) for v in velocity)})
+    down, up = motion_extent(
+        own, forces, boundary_conditions, material_class, height=_height(points, sim_cfg.gravity)
+    )
+    lo, hi = points.min(0).astype(np.float64), points.max(0).astype(np.float64)
+    ext = float((hi - lo).max())
+    if not ext >= 1e-6 * max(fallback, float(np.abs(points).max())):
+        ext = fallback
+    grown_lo = lo + np.maximum(down, -MOTION_CAP * ext)
+    grown_hi = hi + np.minimum(up, MOTION_CAP * ext)
+    for bc in boundary_conditions:
+        if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
+            continue
+        n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
+        p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
+        nn = float(np.linalg.norm(n))
+        if not nn > 0:
+            continue
+        a = int(np.argmax(np.abs(n)))
+        if abs(abs(n[a]) / nn - 1.0) > 1e-9:
+            continue
+        if n[a] > 0 and p[a] <= lo[a]:
+            grown_lo[a] = max(grown_lo[a], p[a])
+        elif n[a] < 0 and p[a] >= hi[a]:
+            grown_hi[a] = min(grown_hi[a], p[a])
+    return grown_lo, grown_hi
+
+
+def prepare_objects(
+    scenes: list[GaussianScene],
+    object_cfgs: list,
+    sim_cfg: SimConfig,
+    boundary_conditions: list | tuple = (),
+    forces: list | tuple = (),
+    material_classes: list | None = None,
+) -> SimScene:
+    """Several objects (``config.ObjectConfig`` each, with its loaded scene) -> one SimScene.
+
+    Each object is transformed, filtered and cropped with its own scene keys; the domain
+    is the given ``sim.domain`` or fitted around all objects, each grown by its own
+    motion (initial velocity ``object.initial_velocity`` or ``sim.initial_velocity``),
+    then by 0.5 x the extent of the union; every object is voxelised, filled and
+    downsampled (``max_particles`` is its share) on that one grid. Particles are
+    ordered visible-derived first (object 0, 1, ...), then the interior fill (object 0,
+    1, ...), so ``n_visible`` keeps its meaning; ``object_id [P]`` says whose each one
+    is; ``splats`` are the objects' splats concatenated in object order.
+    ``source_to_world`` is object 0's transform.
+    """
+    if len(scenes) != len(object_cfgs) or not scenes:
+        raise ValueError("prepare_objects: one loaded scene per object config")
+    classes = list(material_classes or [None] * len(scenes))
+    picked = []
+    for scene, ocfg in zip(scenes, object_cfgs, strict=True):
+        picked.append(_select_splats(scene, ocfg, f"objects[{ocfg.name}] {ocfg.source}"))
+    vis_all = np.concatenate([sp.means.double().numpy() for sp, _ in picked])
+    if sim_cfg.domain is not None:
+        dx, wall_lo, wall_hi = _given_domain(vis_all, sim_cfg.domain, sim_cfg.grid)
+        keep_dims = None
+    else:
+        boxes = []
+        for (sp, _), ocfg, cls in zip(picked, object_cfgs, classes, strict=True):
+            v = (
+                ocfg.initial_velocity
+                if ocfg.initial_velocity is not None
+                else sim_cfg.initial_velocity
+            )
+            pts = sp.means.double().numpy()
+            boxes.append(
+                _grown_box(pts, sim_cfg, forces, boundary_conditions, cls, v, _fallback_extent(sp))
+            )
+        blo = np.min([b[0] for b in boxes], axis=0)
+        bhi = np.max([b[1] for b in boxes], axis=0)
+        corners = np.array(
+            [
+                [x, y, z]
+                for x in (blo[0], bhi[0])
+                for y in (blo[1], bhi[1])
+                for z in (blo[2], bhi[2])
+            ]
+        )
+        lo, dx, keep_dims, hi = fit_domain(
+            corners,
+            sim_cfg.grid,
+            boundary_conditions,
+            fallback_extent=max(_fallback_extent(sp) for sp, _ in picked),
+        )
+        wall_lo, wall_hi = lo + PAD_CELLS * dx, hi - PAD_CELLS * dx
+    targets = _wall_targets(wall_lo, wall_hi, boundary_conditions)
+    lo, dims, hi, wall_hi = _aligned_grid(wall_lo, wall_hi, dx, targets, keep_dims)
+
+    parts = [
+        _particles_at(sp, ocfg, lo, dx) for (sp, _), ocfg in zip(picked, object_cfgs, strict=True)
+    ]
+    n_vis = [len(p[0]) - p[2] for p in parts]
+    n_int = [p[2] for p in parts]
+    vis_start = np.concatenate([[0], np.cumsum(n_vis)])
+    int_start = int(vis_start[-1]) + np.concatenate([[0], np.cumsum(n_int)])
+    particles, volumes, oid, parents, offsets = [], [], [], [], []
+    order_vis, order_int = [], []
+    for k, ((sp, _), (pts, vol, ni, parent, _tv)) in enumerate(zip(picked, parts, strict=True)):
+        nv = len(pts) - ni
+        order_vis.append((pts[:nv], vol[:nv], k))
+        order_int.append((pts[nv:], vol[nv:], k))
+        # the particle a splat follows, in the scene's order
+        local = np.asarray(parent)
+        glob = np.where(local < nv, vis_start[k] + local, int_start[k] + (local - nv))
+        parents.append(glob)
+        offsets.append(sp.means.double().numpy() - pts[local])
+    for pts, vol, k in order_vis + order_int:
+        particles.append(pts)
+        volumes.append(vol)
+        oid.append(np.full(len(pts), k, dtype=np.int64))
+    splats = GaussianScene.concat([sp for sp, _ in picked])
+    return SimScene(
+        splats=splats,
+        particles=torch.from_numpy(np.concatenate(particles)).float(),
+        volumes=torch.from_numpy(np.concatenate(volumes)).float(),
+        n_interior=int(sum(n_int)),
+        splat_parent=torch.from_numpy(np.concatenate(parents).astype(np.int64)),
+        splat_offset=torch.from_numpy(np.concatenate(offsets)).float(),
+        domain_lo=torch.from_numpy(lo).float(),
+        domain_hi=torch.from_numpy(hi).float(),
+        dx=float(dx),
+        grid_dims=tuple(int(d) for d in dims),
+        source_to_world=torch.from_numpy(picked[0][1]),
+        total_volume=float(sum(p[4] for p in parts)),
+        wall_lo=torch.from_numpy(np.asarray(wall_lo, dtype=np.float64)).float(),
+        wall_hi=torch.from_numpy(np.asarray(wall_hi, dtype=np.float64)).float(),
+        object_id=torch.from_numpy(np.concatenate(oid)),
     )
