@@ -13,7 +13,9 @@ from motionphysics.cli import main
 from motionphysics.config import config_from_dict
 from motionphysics.errors import UserInputError
 
-RUBBER = {"class": "elastic", "density": 1000.0, "E": 1.0e6, "nu": 0.3}
+# E at the elastic class floor: a value written outside the handbook range is now used as
+# written (issue 17), and a 1e6 Pa ball at this resolution is too soft to bounce apart.
+RUBBER = {"class": "elastic", "density": 1000.0, "E": 1.0e7, "nu": 0.3}
 STEEL = {"class": "metal", "density": 7850.0, "E": 2.0e11, "nu": 0.3, "tau_Y": 2.5e8}
 
 
