@@ -174,23 +174,39 @@ def register_target(sub) -> None:
     p = sub.add_parser(
         "prior",
         help="time the prior's part of one LMD iteration (random weights)",
-        description=__doc__.split("\n\n")[1],
+        description=(
+            "Time the prior's part of one LMD iteration at the paper's setting (16 frames "
+            "at 256x256: encode with gradients, one guided prediction, backward to the "
+            "frames) and its peak memory, on an architecture built from the published "
+            "configuration with random weights (nothing is downloaded). On CPU only "
+            "--size tiny is feasible."
+        ),
     )
-    p.add_argument("--model", choices=MODELS_BENCHED, required=True)
+    p.add_argument("--model", choices=MODELS_BENCHED, required=True, help="prior architecture")
     p.add_argument(
         "--random-weights",
         action="store_true",
         help="build the published architecture with random weights (nothing is downloaded)",
     )
-    p.add_argument("--size", choices=["tiny", "full"], default="tiny")
-    p.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    p.add_argument(
+        "--size",
+        choices=["tiny", "full"],
+        default="tiny",
+        help="tiny: a few-layer model of the same structure; full: the published size (GPU)",
+    )
+    p.add_argument("--device", choices=["cpu", "cuda"], default="cpu", help="where to run")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_prior)
 
     p = sub.add_parser(
         "iteration",
         help="time one whole LMD iteration of run (simulate, render, prior, backward)",
-        description=__doc__.split("\n\n")[1],
+        description=(
+            "Time one whole LMD iteration of run on the demo config (simulate, render, "
+            "prior, backward to the parameters) with the split of its time, as a ratio to "
+            "a forward simulate and render of the same frames. The prior is a small "
+            "random-weights architecture, so the figure is mostly simulation and rendering."
+        ),
     )
     p.add_argument("--config", metavar="FILE", help="run config (default: the demo)")
     p.add_argument(
@@ -200,6 +216,6 @@ def register_target(sub) -> None:
         help="prior architecture at tiny size with random weights (default cogvideox-2b)",
     )
     p.add_argument("--resolution", type=int, default=64, help="prior frame side (default 64)")
-    p.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    p.add_argument("--device", choices=["cpu", "cuda"], default="cpu", help="where to run")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_iteration)
