@@ -393,6 +393,10 @@ class OptimizeConfig(_Strict):
     Latin hypercube), spread evenly over the handbook range in theta."""
     global_refine: int = Field(4, ge=0)
     """Global stage: extra candidates between the best coarse candidate's neighbours."""
+    global_patience: int = Field(3, ge=0)
+    """Global stage, one parameter: stop the ascending scan after this many consecutive
+    candidates each scoring worse than 10x the best so far (the stiff end of a range
+    costs the most substeps under ``auto`` and is rarely close); 0: scan every point."""
     global_frames: int | None = Field(None, ge=2)
     """Global stage: frames simulated per candidate (a short horizon is cheaper);
     None: all of ``sim.frames``."""

@@ -229,8 +229,10 @@ def global_search(
     Candidates live in u, the position of each optimised parameter in its handbook range
     (log-scaled parameters: a log grid; ``theta = logit(u)``, see
     :mod:`motionphysics.materials.theta`). Round 1: the start, then
-    ``opt.global_points`` regularly spaced values for one parameter (a Latin hypercube
-    of ``global_points * k`` points for ``k`` parameters). Round 2: ``opt.global_refine``
+    ``opt.global_points`` regularly spaced values for one parameter, in ascending order,
+    stopped early after ``opt.global_patience`` consecutive values each worse than 10x
+    the best so far (a Latin hypercube of ``global_points * k`` points for ``k``
+    parameters). Round 2: ``opt.global_refine``
     (``* k``) values in the box of one coarse spacing around the round-1 best. Each
     candidate is one forward rollout of ``opt.global_frames`` frames (no tape, no
     backward) scored by the problem's loss on every frame of that horizon; a candidate
@@ -337,8 +339,12 @@ def global_search(
             )
 
     evaluate(u0, 0)
+    worse = 0
     for u in _lhs(n1, k, rng, lo_u, hi_u):
         evaluate(u, 1)
+        worse = worse + 1 if scores[-1] > 10.0 * min(scores) else 0
+        if k == 1 and opt.global_patience and worse >= opt.global_patience:
+            break  # the rest of the ascending scan is far from the best (and dearer)
     if n2 > 0:
         best = points[int(np.argmin(scores))]
         half = (hi_u - lo_u) / n1
@@ -354,7 +360,6 @@ def global_search(
             pts = list(_lhs(n2 * k, k, rng, lo2, hi2))
         for u in pts:
             evaluate(u, 2)
-    # Fewer round-2 points than planned cannot happen; renumber in case of clipping.
     best_i = int(np.argmin(scores))
     params = records[best_i]["params"]
     initial = {
