@@ -12,6 +12,7 @@ import importlib
 BENCH_TARGETS = [
     "motionphysics.render.bench",
     "motionphysics.sim.bench",
+    "motionphysics.optimize.bench",
 ]
 
 
