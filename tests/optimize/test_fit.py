@@ -244,6 +244,7 @@ def test_killed_fit_resumes_to_the_same_parameters(reference_run, tmp_path):
     proc = subprocess.Popen(_fit_cmd(start, ref, tmp_path / "b", "--iters", iters), env=env)
     log = tmp_path / "b" / "log.jsonl"
     deadline = time.time() + 300
+
     def gradient_lines():
         lines = log.read_text().splitlines() if log.exists() else []
         return [x for x in lines if '"stage": "gradient"' in x]

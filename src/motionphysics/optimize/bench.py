@@ -96,7 +96,9 @@ def time_fit(
     from motionphysics.runtime import set_threads
 
     set_threads()
-    true_cfg = config_from_dict(bench_config(particles, grid, frames, substeps), "bench:fit")
+    true_cfg = config_from_dict(
+        bench_config(particles, grid, frames, substeps, source=source), "bench:fit"
+    )
     ref_parts = assemble(true_cfg, estimate=False, reference_image=False)
     xs, Fs, _vs, ref_substeps = ref_parts.simulate()
     if loss == "video":
@@ -106,7 +108,9 @@ def time_fit(
         reference = Reference("trajectory", xs, "bench:trajectory", "bench")
     # Start 20 % softer: the gradient is not zero and the substep count is the truth's
     # or close to it (the comparison is at the start's own count).
-    cfg = config_from_dict(bench_config(particles, grid, frames, substeps, E=4.0e7), "bench:fit")
+    cfg = config_from_dict(
+        bench_config(particles, grid, frames, substeps, E=4.0e7, source=source), "bench:fit"
+    )
     setup = build_fit(cfg, reference)
     parts = setup.parts
 

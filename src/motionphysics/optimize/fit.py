@@ -226,8 +226,9 @@ def global_search(
 ) -> GlobalResult:
     """The forward-only global stage of ``fit``: the best of a coarse search over theta.
 
-    Candidates live in u, the position of each optimised parameter in its handbook range
-    (log-scaled parameters: a log grid; ``theta = logit(u)``, see
+    Candidates live in u, the position of each optimised parameter in its range
+    (``problem.specs``: the handbook range; log-scaled parameters: a log grid), mapped
+    to theta by the problem's theta map (``fit``: ``theta = logit(u)``, see
     :mod:`motionphysics.materials.theta`). Round 1: the start, then
     ``opt.global_points`` regularly spaced values for one parameter, in ascending order,
     stopped early after ``opt.global_patience`` consecutive values each worse than 10x
@@ -259,11 +260,12 @@ def global_search(
     num_frames = int(problem.simulator.num_frames)
     h = num_frames if opt.global_frames is None else min(num_frames, int(opt.global_frames))
     frames = tuple(range(1, h))
+    missing = [n for n in names if n not in problem.specs]
+    if missing:
+        raise ValueError(f"global_search: no range (Problem.specs) for {missing}")
+    specs = [problem.specs[n] for n in names]
     base = problem.initial_theta()
-    with torch.no_grad():
-        u0 = np.array(
-            [float(torch.sigmoid(base[n].detach().double().reshape(-1)[0])) for n in names]
-        )
+    u0 = np.array([_u_of(ps, float(problem.initial[ps.name])) for ps in specs])
     rng = np.random.default_rng(int(opt.seed))
     n1, n2 = int(opt.global_points), int(opt.global_refine)
     lo_u, hi_u = np.full(k, 1e-4), np.full(k, 1.0 - 1e-4)
@@ -276,10 +278,9 @@ def global_search(
     points: list[np.ndarray] = []
 
     def evaluate(u: np.ndarray, rnd: int) -> None:
-        theta = {}
-        for j, n in enumerate(names):
-            value = torch.logit(torch.tensor(float(u[j]), dtype=torch.float64)).float()
-            theta[n] = value.expand_as(base[n]).clone()
+        values = {ps.name: _x_of(ps, float(u[j])) for j, ps in enumerate(specs)}
+        vec = problem.theta_map.to_theta(values).detach().to(torch.float32)
+        theta = {n: vec[j].expand_as(base[n]).clone() for j, n in enumerate(names)}
         for n in base:
             theta.setdefault(n, base[n].detach().clone())
         timings: dict[str, float] = {}
@@ -342,7 +343,11 @@ def global_search(
     worse = 0
     for u in _lhs(n1, k, rng, lo_u, hi_u):
         evaluate(u, 1)
-        worse = worse + 1 if scores[-1] > 10.0 * min(scores) else 0
+        # Patience counts only past a minimum of the scan itself (not the start's
+        # score): the values after it, each far worse, are the climb out of its valley.
+        scan = scores[1:]
+        past = len(scan) > 1 and int(np.argmin(scan)) < len(scan) - 1
+        worse = worse + 1 if past and scan[-1] > 10.0 * min(scan) else 0
         if k == 1 and opt.global_patience and worse >= opt.global_patience:
             break  # the rest of the ascending scan is far from the best (and dearer)
     if n2 > 0:
@@ -359,7 +364,8 @@ def global_search(
         else:
             pts = list(_lhs(n2 * k, k, rng, lo2, hi2))
         for u in pts:
-            evaluate(u, 2)
+            if not any(np.allclose(u, q, rtol=0, atol=1e-9) for q in points):
+                evaluate(u, 2)  # (a point clipped onto a bound is not evaluated twice)
     best_i = int(np.argmin(scores))
     params = records[best_i]["params"]
     initial = {
@@ -367,6 +373,25 @@ def global_search(
         for n in names
     }
     return GlobalResult(initial, records, best_i, time.perf_counter() - t_start)
+
+
+def _u_of(ps, x: float) -> float:
+    """Position of ``x`` in the range of ``ps`` (log-scaled: of ``log x``), in [0, 1]."""
+    import math
+
+    if ps.scale == "log":
+        u = (math.log(x) - math.log(ps.low)) / (math.log(ps.high) - math.log(ps.low))
+    else:
+        u = (x - ps.low) / (ps.high - ps.low)
+    return min(max(u, 0.0), 1.0)
+
+
+def _x_of(ps, u: float) -> float:
+    import math
+
+    if ps.scale == "log":
+        return math.exp(math.log(ps.low) + u * (math.log(ps.high) - math.log(ps.low)))
+    return ps.low + u * (ps.high - ps.low)
 
 
 def _fmt(v) -> str:
