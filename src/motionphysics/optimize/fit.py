@@ -537,6 +537,7 @@ def run_fit(
                 found = global_search(
                     problem, cfg.optimize, log_path, observer=_Advance(writer.observer, st)
                 )
+                st.set_total(len(found.records))  # an ascending scan may stop early
             global_records = found.records
             problem = replace(problem, initial={**problem.initial, **found.initial})
             fit["global"] = {
