@@ -422,6 +422,27 @@ class OptimizeConfig(_Strict):
     """video_match: weight w of ``(1 - SSIM)`` in ``(1 - w) L1 + w (1 - SSIM)``."""
     trajectory_metric: Literal["l2", "chamfer"] = "l2"
     """trajectory_match: ``l2`` (corresponding particles) or ``chamfer`` (point sets)."""
+    global_search: bool = True
+    """``fit``: a forward-only global stage before the gradient stage (a log-grid scan
+    of the optimised parameter, or a Latin hypercube over theta for several); the
+    gradient stage starts from its best candidate. ``fit --no-global`` turns it off."""
+    global_points: int = Field(9, ge=2)
+    """Global stage: candidates of the coarse scan (per optimised parameter for a
+    Latin hypercube), spread evenly over the handbook range in theta."""
+    global_refine: int = Field(4, ge=0)
+    """Global stage: extra candidates between the best coarse candidate's neighbours."""
+    global_patience: int = Field(3, ge=0)
+    """Global stage, one parameter: stop the ascending scan after this many consecutive
+    candidates each scoring worse than 10x the best so far (the stiff end of a range
+    costs the most substeps under ``auto`` and is rarely close); 0: scan every point."""
+    global_frames: int | None = Field(None, ge=2)
+    """Global stage: frames simulated per candidate (a short horizon is cheaper);
+    None: all of ``sim.frames``."""
+    curriculum: float = Field(0.25, ge=0, le=1)
+    """Gradient stage: fraction of the iterations over which the supervised horizon
+    grows from the first quarter of the frames to all of them (early frames first,
+    for oscillating motion whose error is not convex in stiffness); 0: all frames
+    from the start."""
 
     @model_validator(mode="before")
     @classmethod

@@ -95,12 +95,24 @@ def test_fit_command_writes_the_run_directory(reference_run, tmp_path, capsys):
         assert (out / f).is_file(), f
     params = json.loads((out / "params.json").read_text())
     assert params["partial"] is False and params["fit"]["iterations_run"] == 3
-    assert len(params["history"]) == 3 and params["fit"]["loss"] == "trajectory_match"
+    assert params["fit"]["loss"] == "trajectory_match"
     assert set(params["params"]) == {"E", "nu"} and "E" in params["sim"]
     log = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
-    assert [r["iteration"] for r in log] == [0, 1, 2]
-    # the stiffness moves from 1e10 towards the true 2e8
-    assert log[-1]["params"]["E"] < log[0]["params"]["E"]
+    assert params["history"] == log
+    # both stages in the log: the global candidates first (negative iterations, the
+    # start first), then the gradient stage's iterations 0, 1, 2
+    glob = [r for r in log if r["stage"] == "global"]
+    grad = [r for r in log if r["stage"] == "gradient"]
+    assert glob and glob == log[: len(glob)] and glob[0]["params"]["E"] == pytest.approx(1e10)
+    its = [r["iteration"] for r in glob]
+    assert its == sorted(its) and its[-1] < 0
+    assert [r["iteration"] for r in grad] == [0, 1, 2]
+    best = min(glob, key=lambda r: r["loss"] if r["loss"] is not None else float("inf"))
+    assert grad[0]["params"]["E"] == pytest.approx(best["params"]["E"], rel=1e-5)
+    assert params["fit"]["global"]["candidates"] == len(glob)
+    # the global stage lands within a grid spacing of the true 2e8 from 1e10 (the range
+    # 1e7..4e11 in 9 log steps: a factor 3.2; the refine round splits that)
+    assert 2e8 / 3.2 < grad[-1]["params"]["E"] < 2e8 * 3.2
     with np.load(out / "trajectory.npz") as z, np.load(d / "ref" / "trajectory.npz") as ref:
         assert z["x"].shape == ref["x"].shape
     assert "fit:" in capsys.readouterr().out
@@ -135,11 +147,15 @@ def test_fit_command_writes_the_run_directory(reference_run, tmp_path, capsys):
                 "--iters",
                 "1",
                 "--force",
+                "--no-global",
             ]
         )
         == 0
     )
-    assert len((out / "log.jsonl").read_text().splitlines()) == 1
+    # --no-global: the gradient stage alone, from the config's material
+    (line,) = (out / "log.jsonl").read_text().splitlines()
+    assert json.loads(line)["stage"] == "gradient"
+    assert json.loads(line)["params"]["E"] == pytest.approx(1e10, rel=1e-5)
 
 
 def test_fit_to_a_video_reference(reference_run, tmp_path):
@@ -162,8 +178,12 @@ def test_fit_to_a_video_reference(reference_run, tmp_path):
         == 0
     )
     params = json.loads((out / "params.json").read_text())
-    assert params["fit"]["loss"] == "video_match" and len(params["history"]) == 2
-    assert all(r["grad_norm"]["total"] > 0 for r in params["history"])
+    grad = [r for r in params["history"] if r["stage"] == "gradient"]
+    assert params["fit"]["loss"] == "video_match" and len(grad) == 2
+    assert all(r["grad_norm"]["total"] > 0 for r in grad)
+    # the global stage scored its candidates on the rendered video too
+    glob = [r for r in params["history"] if r["stage"] == "global"]
+    assert len(glob) >= 2 and all(r["loss"] is not None and r["loss"] > 0 for r in glob)
 
 
 def test_bad_references_are_refused_naming_both_sides(reference_run, tmp_path, capsys):
@@ -224,14 +244,19 @@ def test_killed_fit_resumes_to_the_same_parameters(reference_run, tmp_path):
     proc = subprocess.Popen(_fit_cmd(start, ref, tmp_path / "b", "--iters", iters), env=env)
     log = tmp_path / "b" / "log.jsonl"
     deadline = time.time() + 300
+
+    def gradient_lines():
+        lines = log.read_text().splitlines() if log.exists() else []
+        return [x for x in lines if '"stage": "gradient"' in x]
+
     while time.time() < deadline and proc.poll() is None:
-        if log.exists() and len(log.read_text().splitlines()) >= 3:
+        if len(gradient_lines()) >= 3:
             break
         time.sleep(0.02)
     assert proc.poll() is None, "the fit finished before it could be killed"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    assert 3 <= len(log.read_text().splitlines()) < 10
+    assert 3 <= len(gradient_lines()) < 10
     subprocess.run(
         _fit_cmd(start, ref, tmp_path / "b", "--iters", iters, "--resume"),
         check=True,

@@ -1,8 +1,9 @@
 """motionphysics fit CONFIG --reference VIDEO_OR_NPZ: system identification.
 
 Recovers the material parameters that reproduce a reference (a video from the config's
-camera, or a ``trajectory.npz`` of ``simulate``) by differentiable simulation, starting
-from the config's material. The library is :mod:`motionphysics.optimize.fit`; this
+camera, or a ``trajectory.npz`` of ``simulate``) in two stages: a forward-only global
+search over the handbook range (``--no-global`` skips it), then differentiable
+simulation from its best candidate (the config's material without it). The library is :mod:`motionphysics.optimize.fit`; this
 module is argument handling only.
 """
 
@@ -22,7 +23,10 @@ def _main(args) -> int:
 
     if args.iters is not None and args.iters < 0:
         raise UserInputError(f"--iters: expected a count >= 0, got {args.iters}")
-    cfg = load_run_config(args.config, {"device": args.device})
+    overrides = {"device": args.device}
+    if args.no_global:
+        overrides["optimize.global_search"] = False
+    cfg = load_run_config(args.config, overrides)
     out = Path(args.out) if args.out else default_out(args.config, "fit")
     quiet = getattr(args, "quiet", False)
     with Progress(quiet=quiet, verbose=getattr(args, "verbose", False)) as prog:
@@ -61,6 +65,12 @@ def register(subparsers) -> None:
     p.add_argument("--force", action="store_true", help="overwrite a run already in --out")
     p.add_argument(
         "--iters", type=int, metavar="N", help="optimisation iterations (default: the config's)"
+    )
+    p.add_argument(
+        "--no-global",
+        action="store_true",
+        help="skip the global stage (optimize.global_search: false): gradient stage only, "
+        "from the config's material",
     )
     p.add_argument("--device", choices=["cpu", "cuda"], help="where to simulate and render")
     p.set_defaults(func=_main)

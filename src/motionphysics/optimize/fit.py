@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,8 @@ from motionphysics.errors import SimulationError, UserInputError
 
 __all__ = [
     "FitSetup",
+    "GlobalResult",
+    "global_search",
     "Reference",
     "build_fit",
     "build_problem",
@@ -200,6 +202,222 @@ def build_fit(
     return FitSetup(parts, names, build_problem(parts, loss, names), reference)
 
 
+@dataclass
+class GlobalResult:
+    """Outcome of the global stage (:func:`global_search`)."""
+
+    initial: dict[str, float]
+    """Physical values of the optimised names at the best candidate (the gradient start)."""
+    records: list[dict[str, Any]]
+    """One ``log.jsonl`` record per candidate (``stage: "global"``, negative ``iteration``)."""
+    best: int
+    """Index of the best candidate in ``records``."""
+    seconds: float
+
+
+def _lhs(n: int, k: int, rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``n`` points [n, k] of a Latin hypercube in the box ``[lo, hi]`` (u coordinates).
+
+    One parameter: the centres of ``n`` equal strata (a regular grid); several: one
+    random point per stratum and coordinate, strata permuted independently.
+    """
+    strata = (np.arange(n)[:, None] + (0.5 if k == 1 else rng.random((n, k)))) / n
+    if k > 1:
+        for j in range(k):
+            strata[:, j] = strata[rng.permutation(n), j]
+    return lo + strata * (hi - lo)
+
+
+def global_search(
+    problem, opt, log_path: str | Path | None = None, *, observer=None
+) -> GlobalResult:
+    """The forward-only global stage of ``fit``: the best of a coarse search over theta.
+
+    Candidates live in u, the position of each optimised parameter in its range
+    (``problem.specs``: the handbook range; log-scaled parameters: a log grid), mapped
+    to theta by the problem's theta map (``fit``: ``theta = logit(u)``, see
+    :mod:`motionphysics.materials.theta`). Round 1: the start, then
+    ``opt.global_points`` regularly spaced values for one parameter, in ascending order,
+    stopped early after ``opt.global_patience`` consecutive values each worse than 10x
+    the best so far (a Latin hypercube of ``global_points * k`` points for ``k``
+    parameters). Round 2: ``opt.global_refine``
+    (``* k``) values in the box of one coarse spacing around the round-1 best. Each
+    candidate is one forward rollout of ``opt.global_frames`` frames (no tape, no
+    backward) scored by the problem's loss on every frame of that horizon; a candidate
+    that diverges scores +inf. Per-particle names are scanned as uniform fields, the
+    initial velocity (when optimised) stays at its start.
+
+    Candidates run one after another in this process: Warp's CPU runtime is not safe
+    across ``fork``, and a ``spawn`` pool would have to import Warp, load its kernels
+    and rebuild the scene and simulation in every worker (seconds each), more than a
+    scan of a dozen short rollouts costs on two shared cores.
+
+    ``log_path``: ``log.jsonl`` to (re)write with the candidates' records.
+    """
+    import time
+
+    import torch
+
+    from motionphysics.losses.base import LossContext
+    from motionphysics.optimize.loop import _append_log
+
+    t_start = time.perf_counter()
+    names = list(problem.theta_map.names)
+    k = len(names)
+    num_frames = int(problem.simulator.num_frames)
+    h = num_frames if opt.global_frames is None else min(num_frames, int(opt.global_frames))
+    frames = tuple(range(1, h))
+    missing = [n for n in names if n not in problem.specs]
+    if missing:
+        raise ValueError(f"global_search: no range (Problem.specs) for {missing}")
+    specs = [problem.specs[n] for n in names]
+    base = problem.initial_theta()
+    u0 = np.array([_u_of(ps, float(problem.initial[ps.name])) for ps in specs])
+    rng = np.random.default_rng(int(opt.seed))
+    n1, n2 = int(opt.global_points), int(opt.global_refine)
+    lo_u, hi_u = np.full(k, 1e-4), np.full(k, 1.0 - 1e-4)
+    total = 1 + n1 * k + n2 * k
+    path = Path(log_path) if log_path is not None else None
+    if path is not None:
+        path.unlink(missing_ok=True)
+    records: list[dict[str, Any]] = []
+    scores: list[float] = []
+    points: list[np.ndarray] = []
+
+    def evaluate(u: np.ndarray, rnd: int) -> None:
+        values = {ps.name: _x_of(ps, float(u[j])) for j, ps in enumerate(specs)}
+        vec = problem.theta_map.to_theta(values).detach().to(torch.float32)
+        theta = {n: vec[j].expand_as(base[n]).clone() for j, n in enumerate(names)}
+        for n in base:
+            theta.setdefault(n, base[n].detach().clone())
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        loss_value = float("inf")
+        stopped = None
+        with torch.no_grad():
+            try:
+                pred = problem.forward(theta, frames, "full", 1, timings)
+                t1 = time.perf_counter()
+                loss_value = float(
+                    problem.loss(
+                        pred,
+                        LossContext(
+                            iteration=0,
+                            num_frames=num_frames,
+                            rng=torch.Generator().manual_seed(int(opt.seed)),
+                            extras={},
+                        ),
+                    )
+                )
+                timings["loss"] = time.perf_counter() - t1
+            except SimulationError as err:
+                stopped = f"diverged: {err}"
+        if not np.isfinite(loss_value):
+            loss_value = float("inf")
+        params, sim_params = problem.report(theta)
+        i = len(records)
+        rec: dict[str, Any] = {
+            "iteration": i - total,
+            "stage": "global",
+            "candidate": i,
+            "round": rnd,
+            "loss": loss_value if np.isfinite(loss_value) else None,
+            "frames": list(frames),
+            "params": params,
+            "sim_params": sim_params,
+            "u": [float(x) for x in u],
+        }
+        substeps = getattr(problem.simulator, "substeps", None)
+        if substeps is not None:
+            rec["substeps"] = int(substeps)
+        if stopped:
+            rec["stopped"] = stopped
+        rec["time"] = {**timings, "total": time.perf_counter() - t0}
+        records.append(rec)
+        scores.append(loss_value)
+        points.append(np.asarray(u, dtype=np.float64))
+        if path is not None:
+            _append_log(path, rec)
+        if observer is not None:
+            observer.message(
+                "info",
+                f"global stage {i + 1}/{total}: "
+                + ", ".join(f"{n}={_fmt(params[n])}" for n in names)
+                + f" loss {loss_value:.4g}",
+            )
+
+    evaluate(u0, 0)
+    worse = 0
+    for u in _lhs(n1, k, rng, lo_u, hi_u):
+        evaluate(u, 1)
+        # Patience counts only past a minimum of the scan itself (not the start's
+        # score): the values after it, each far worse, are the climb out of its valley.
+        scan = scores[1:]
+        past = len(scan) > 1 and int(np.argmin(scan)) < len(scan) - 1
+        worse = worse + 1 if past and scan[-1] > 10.0 * min(scan) else 0
+        if k == 1 and opt.global_patience and worse >= opt.global_patience:
+            break  # the rest of the ascending scan is far from the best (and dearer)
+    if n2 > 0:
+        best = points[int(np.argmin(scores))]
+        half = (hi_u - lo_u) / n1
+        lo2, hi2 = np.maximum(lo_u, best - half), np.minimum(hi_u, best + half)
+        # One parameter: the refine points split the spacing on both sides of the best
+        # evenly (the best itself is not evaluated twice).
+        if k == 1:
+            m = n2 // 2
+            left = [best[0] - half[0] * (i + 1) / (m + 1) for i in range(m)]
+            right = [best[0] + half[0] * (i + 1) / (n2 - m + 1) for i in range(n2 - m)]
+            pts = [np.clip(np.array([v]), lo_u, hi_u) for v in (*left, *right)]
+        else:
+            pts = list(_lhs(n2 * k, k, rng, lo2, hi2))
+        for u in pts:
+            if not any(np.allclose(u, q, rtol=0, atol=1e-9) for q in points):
+                evaluate(u, 2)  # (a point clipped onto a bound is not evaluated twice)
+    best_i = int(np.argmin(scores))
+    params = records[best_i]["params"]
+    initial = {
+        n: float(params[n]) if not isinstance(params[n], dict) else float(params[n]["mean"])
+        for n in names
+    }
+    return GlobalResult(initial, records, best_i, time.perf_counter() - t_start)
+
+
+def _u_of(ps, x: float) -> float:
+    """Position of ``x`` in the range of ``ps`` (log-scaled: of ``log x``), in [0, 1]."""
+    import math
+
+    if ps.scale == "log":
+        u = (math.log(x) - math.log(ps.low)) / (math.log(ps.high) - math.log(ps.low))
+    else:
+        u = (x - ps.low) / (ps.high - ps.low)
+    return min(max(u, 0.0), 1.0)
+
+
+def _x_of(ps, u: float) -> float:
+    import math
+
+    if ps.scale == "log":
+        return math.exp(math.log(ps.low) + u * (math.log(ps.high) - math.log(ps.low)))
+    return ps.low + u * (ps.high - ps.low)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, dict):
+        v = v.get("mean")
+    return f"{float(v):.4g}"
+
+
+class _Advance:
+    """Observer wrapper: each global-stage candidate advances the progress stage."""
+
+    def __init__(self, observer, st):
+        self._observer, self._st = observer, st
+
+    def message(self, level: str, text: str) -> None:
+        self._st.advance()
+        self._st.note(text)
+
+
 def fingerprint(cfg, reference_digest: str) -> str:
     """Identifies a fit's config and reference (resuming another fit's checkpoint is refused)."""
     from motionphysics.config import config_to_dict
@@ -251,7 +469,7 @@ def run_fit(
     """
     from motionphysics.events import Observers
     from motionphysics.io.writer import RunWriter
-    from motionphysics.optimize.loop import optimize
+    from motionphysics.optimize.loop import CHECKPOINT_NAME, LOG_NAME, optimize
     from motionphysics.progress import Progress, ProgressObserver
     from motionphysics.runtime import check_device, set_threads
 
@@ -311,9 +529,39 @@ def run_fit(
         writer.state["fit"] = fit
         writer.save_config(cfg)
 
+        log_path = writer.path / LOG_NAME
+        resuming = resume and (writer.path / CHECKPOINT_NAME).exists()
+        global_records: list[dict[str, Any]] = []
+        if resuming:
+            # The gradient stage continues from its checkpoint; the global stage's
+            # candidates are already in log.jsonl (negative iterations).
+            global_records = [
+                r for r in writer.rd.read_jsonl(LOG_NAME) if r.get("stage") == "global"
+            ]
+        elif cfg.optimize.global_search and total > 0:
+            n = 1 + (cfg.optimize.global_points + cfg.optimize.global_refine) * len(setup.names)
+            with writer.stage("global search", total=n) as st:
+                found = global_search(
+                    problem, cfg.optimize, log_path, observer=_Advance(writer.observer, st)
+                )
+                st.set_total(len(found.records))  # an ascending scan may stop early
+            global_records = found.records
+            problem = replace(problem, initial={**problem.initial, **found.initial})
+            fit["global"] = {
+                "candidates": len(found.records),
+                "best": found.best,
+                "start": found.initial,
+                "seconds": found.seconds,
+                "frames": int(cfg.optimize.global_frames or cfg.sim.frames),
+            }
+        elif not resume:
+            log_path.unlink(missing_ok=True)
+
         with writer.stage("optimise", total=total) as st:
             if resume:
-                st.advance(len(writer.rd.read_jsonl("log.jsonl")))
+                st.advance(
+                    sum(1 for r in writer.rd.read_jsonl(LOG_NAME) if r.get("stage") != "global")
+                )
             result = optimize(
                 problem,
                 cfg.optimize,
@@ -323,9 +571,12 @@ def run_fit(
                 fingerprint=fingerprint(cfg, reference.digest),
                 progress=lambda rec: st.advance(),
                 observer=writer.observer,
+                curriculum=float(cfg.optimize.curriculum),
+                stage="gradient",
+                keep_log=True,
             )
         writer.add_files("log.jsonl", "checkpoint.pt")
-        writer.state["history"] = result.history
+        writer.state["history"] = global_records + result.history
         fit.update(
             {
                 "stop_reason": result.stop_reason,

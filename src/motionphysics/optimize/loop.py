@@ -55,7 +55,14 @@ from motionphysics.optimize.checkpoint import (
 from motionphysics.optimize.problem import Problem
 from motionphysics.optimize.schedule import learning_rates
 
-__all__ = ["CALM_ITERATIONS", "LOG_NAME", "CHECKPOINT_NAME", "OptimizeResult", "optimize"]
+__all__ = [
+    "CALM_ITERATIONS",
+    "LOG_NAME",
+    "CHECKPOINT_NAME",
+    "OptimizeResult",
+    "horizon",
+    "optimize",
+]
 
 LOG_NAME = "log.jsonl"
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -122,6 +129,20 @@ def _append_log(path: Path, record: dict[str, Any]) -> None:
         os.fsync(fh.fileno())
 
 
+def horizon(iteration: int, total: int, num_frames: int, curriculum: float) -> int:
+    """Frames (indices ``0 .. h-1``) the loss may see at 0-based ``iteration``.
+
+    Grows linearly from ``max(2, num_frames // 4 + 1)`` to ``num_frames`` over the first
+    ``ceil(curriculum * total)`` iterations; ``num_frames`` after (and for
+    ``curriculum`` 0).
+    """
+    ramp = math.ceil(curriculum * total)
+    if ramp <= 0 or iteration >= ramp:
+        return num_frames
+    h0 = min(num_frames, max(2, num_frames // 4 + 1))
+    return int(h0 + (num_frames - h0) * iteration // ramp)
+
+
 def _flat(theta: dict[str, Tensor]) -> Tensor:
     return torch.cat([t.detach().reshape(-1).double() for t in theta.values()])
 
@@ -138,6 +159,9 @@ def optimize(
     observer: Any = None,
     extras: dict[str, Any] | None = None,
     losses: Any = None,
+    curriculum: float = 0.0,
+    stage: str | None = None,
+    keep_log: bool = False,
 ) -> OptimizeResult:
     """Run (or continue) the optimisation of ``problem``; see the module docstring.
 
@@ -151,6 +175,11 @@ def optimize(
     losses: objects with ``state_dict()`` / ``load_state_dict()`` (the configured
     losses) whose state goes into ``checkpoint.pt`` and comes back on resume; default
     ``problem.loss``.
+    curriculum: fraction of ``iterations`` over which the supervised horizon grows
+    (:func:`horizon`): early frames first, all frames after.
+    stage: written as ``"stage"`` in every record (``fit``: ``"gradient"``).
+    keep_log: keep the records of ``log.jsonl`` with negative ``iteration`` (an earlier
+    stage's, e.g. the global stage of ``fit``) instead of starting a fresh log.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -217,13 +246,21 @@ def optimize(
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed % 2**32)  # noqa: NPY002 - seeds plug-ins that use the global RNG
         random.seed(cfg.seed)
-        log_path.unlink(missing_ok=True)
+        if keep_log:
+            _truncate_log(log_path, 0)
+        else:
+            log_path.unlink(missing_ok=True)
 
     stop_reason: str | None = None
     message = ""
     it = start
     for it in range(start, total):
         frames = frames_for_iteration(it, num_frames, cfg.boost)
+        h = horizon(it, total, num_frames, curriculum)
+        if h < num_frames:
+            # Early frames first: the boosted frames inside the horizon (all of the
+            # horizon's frames when none of the subsequence's is inside it).
+            frames = tuple(f for f in frames if f < h) or tuple(range(1, h))
         lrs = learning_rates(names, cfg.lr, cfg.lr_per_param, it, total, cfg.warmup)
         for group in opt.param_groups:
             group["lr"] = lrs[group["name"]]
@@ -261,6 +298,7 @@ def optimize(
         grad_norm["total"] = float(math.sqrt(sum(v * v for v in grad_norm.values())))
         record: dict[str, Any] = {
             "iteration": it,
+            **({"stage": stage} if stage else {}),
             "loss": _finite(loss_value),
             **{f"loss_{k}": v for k, v in problem.loss.components().items()},
             "frames": list(frames),
@@ -275,6 +313,8 @@ def optimize(
         if extras and "guidance" in extras:
             record["guidance"] = extras["guidance"]
         substeps = getattr(problem.simulator, "substeps", None)
+        if h < num_frames:
+            record["horizon"] = h
         if substeps is not None:
             # Under ``substeps: auto`` the simulator re-resolves the count for the
             # parameters of this iteration (logged, so a change is visible).

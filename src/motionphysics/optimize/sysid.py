@@ -21,7 +21,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-__all__ = ["CASES", "Case", "case_config", "run_case"]
+__all__ = [
+    "CASES",
+    "RECOVERIES",
+    "Case",
+    "Recovery",
+    "case_config",
+    "recovery_config",
+    "run_case",
+    "run_recovery",
+]
 
 
 @dataclass(frozen=True)
@@ -243,3 +252,195 @@ def run_case(
         "seconds_per_iteration": seconds / max(1, res.iterations),
         "stop_reason": res.stop_reason,
     }
+
+
+# --------------------------------------------------------------------------------------
+# recovery of PHYSICAL values through the fit command's path (global + gradient stage)
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Recovery:
+    """A drop of a non-spherical object whose physical parameter ``name`` is recovered.
+
+    The reference is ``simulate``'s trajectory of the true material; the fit is
+    :func:`motionphysics.optimize.fit.run_fit` (the ``fit`` command: global stage, then
+    the gradient stage) from each of ``starts``; judged on the physical value in
+    ``params.json`` (relative ``tolerance``).
+    """
+
+    name: str
+    cls: str
+    true: dict[str, float]
+    param: str
+    shape: str = "cube"
+    floor: str = "frictional"
+    """Floor collider mode: ``frictional`` (friction 0.4) or ``sticky``."""
+    speed: float = 2.0
+    tolerance: float = 0.15
+    starts: tuple[str, ...] = ("x10", "top", "bottom")
+    """``x10``: 10x the true value (0.1x when that leaves the range), ``top`` /
+    ``bottom``: the handbook range's bounds, ``x<f>``: ``f`` times the true value."""
+    iterations: int = 16
+    substeps: int | str = "auto"
+
+
+RECOVERIES: dict[str, Recovery] = {
+    r.name: r
+    for r in (
+        Recovery(
+            "elastic_cube_frictional", "elastic", {"density": 1000.0, "E": 5e7, "nu": 0.3}, "E"
+        ),
+        Recovery(
+            "elastic_torus_sticky",
+            "elastic",
+            {"density": 1000.0, "E": 2e8, "nu": 0.3},
+            "E",
+            shape="torus",
+            floor="sticky",
+        ),
+        Recovery(
+            "elastic_bird_frictional",
+            "elastic",
+            {"density": 1000.0, "E": 1e8, "nu": 0.3},
+            "E",
+            shape="duck",
+            substeps=30,
+        ),
+        Recovery(
+            "newtonian_cube",
+            "newtonian",
+            {"density": 1000.0, "mu": 2.0, "kappa": 2.0e9},
+            "mu",
+            starts=("x0.1", "top", "bottom"),
+        ),
+        Recovery(
+            "plasticine_cube",
+            "plasticine",
+            {"density": 1500.0, "E": 3e6, "nu": 0.3, "tau_Y": 1e4},
+            "tau_Y",
+            speed=3.0,
+            starts=("top", "bottom"),
+        ),
+    )
+}
+
+RECOVERY_SIZES = {
+    "tiny": {"max_particles": 250, "grid": 10, "frames": 6, "iterations": 10},
+    "full": {"max_particles": 1500, "grid": 16, "frames": 12, "iterations": None},
+}
+
+
+def recovery_config(rec: Recovery, material: dict[str, float], size: str = "tiny") -> dict:
+    """Run-config mapping of ``rec`` with the physical ``material``."""
+    s = RECOVERY_SIZES[size]
+    floor = {"type": "surface_collider", "point": [0, 0, 0], "normal": [0, 0, 1]}
+    floor.update(
+        {"mode": "frictional", "friction": 0.4} if rec.floor == "frictional" else {"mode": "sticky"}
+    )
+    return {
+        "scene": {
+            "source": f"builtin:{rec.shape}",
+            "scale": 0.6,
+            "translate": [0, 0, 0.45],
+            "max_particles": s["max_particles"],
+        },
+        "material": {"class": rec.cls, **material},
+        "sim": {
+            "grid": s["grid"],
+            "frames": s["frames"],
+            "frame_dt": 0.04,
+            "substeps": rec.substeps,
+            "initial_velocity": [0.0, 0.0, -float(rec.speed)],
+        },
+        "boundary_conditions": [floor, {"type": "bounding_box"}],
+        "camera": {"width": 32, "height": 32},
+        "optimize": {
+            "params": [rec.param],
+            "iterations": int(s["iterations"] or rec.iterations),
+        },
+    }
+
+
+def start_value(rec: Recovery, start: str) -> float:
+    """The physical starting value of ``rec.param`` named by ``start``."""
+    from motionphysics.materials.catalog import spec
+
+    ps = spec(rec.cls, rec.param)
+    true = float(rec.true[rec.param])
+    if start == "top":
+        return float(ps.high)
+    if start == "bottom":
+        return float(ps.low)
+    if start == "x10":
+        return true * 10.0 if true * 10.0 <= ps.high else true / 10.0
+    if start.startswith("x"):
+        return min(max(true * float(start[1:]), float(ps.low)), float(ps.high))
+    raise ValueError(f"unknown start {start!r}")
+
+
+def run_recovery(
+    rec: Recovery | str,
+    out_dir: str | Path,
+    *,
+    size: str = "tiny",
+    starts: tuple[str, ...] | None = None,
+    global_search: bool = True,
+) -> list[dict[str, Any]]:
+    """``simulate`` the truth, then ``fit`` from each start; one result dict per start.
+
+    Each dict: case, start name and value, true and fitted physical values, relative
+    error, ``ok`` (within ``rec.tolerance``), seconds of the fit (global + gradient +
+    outputs) and of the reference simulation, iterations, substeps.
+    """
+    import json
+
+    import numpy as np
+
+    from motionphysics.config import config_from_dict
+    from motionphysics.optimize.fit import run_fit
+
+    rec = RECOVERIES[rec] if isinstance(rec, str) else rec
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    true_cfg = config_from_dict(recovery_config(rec, rec.true, size), f"sysid:{rec.name}")
+    t0 = time.perf_counter()
+    from motionphysics.assembly import assemble
+
+    parts = assemble(true_cfg, estimate=False, reference_image=False)
+    xs, _Fs, _vs, substeps = parts.simulate()
+    t_ref = time.perf_counter() - t0
+    ref_path = out / "reference.npz"
+    np.savez(ref_path, x=xs)
+    results = []
+    for start in starts or rec.starts:
+        material = dict(rec.true)
+        material[rec.param] = start_value(rec, start)
+        data = recovery_config(rec, material, size)
+        data["optimize"]["global_search"] = bool(global_search)
+        cfg = config_from_dict(data, f"sysid:{rec.name}:{start}")
+        t0 = time.perf_counter()
+        run_fit(cfg, ref_path, out / f"fit_{start}", force=True)
+        seconds = time.perf_counter() - t0
+        params = json.loads((out / f"fit_{start}" / "params.json").read_text())
+        got = float(params["params"][rec.param])
+        true = float(rec.true[rec.param])
+        err = abs(got - true) / abs(true)
+        results.append(
+            {
+                "case": rec.name,
+                "size": size,
+                "start": start,
+                "start_value": material[rec.param],
+                "param": rec.param,
+                "true": true,
+                "fitted": got,
+                "error": err,
+                "ok": err <= rec.tolerance,
+                "seconds": seconds,
+                "reference_seconds": t_ref,
+                "particles": int(xs.shape[1]),
+                "substeps": int(substeps),
+                "iterations": int(params["fit"].get("iterations_run", 0)),
+                "global": params["fit"].get("global"),
+            }
+        )
+    return results
