@@ -169,6 +169,10 @@ class RunWriter:
 
         self.rd = RunDirectory(out, resume=resume, force=force)
         self.path = self.rd.path
+        self.resume = bool(resume)
+        if self.resume:
+            # temporaries of a killed process are never finished files
+            self.rd.clean_temporaries()
         self.command = command
         self.progress = progress or Progress(quiet=True)
         self.observer = observer or NullObserver()
@@ -181,7 +185,16 @@ class RunWriter:
 
     # -- lifecycle -----------------------------------------------------------------------
     def begin(self, cfg, *, seed: int, device: str, **extra: Any) -> None:
-        """Write ``run.yaml`` and a first ``params.json`` (``partial: true``)."""
+        """Write ``run.yaml`` and a first ``params.json`` (``partial: true``).
+
+        Resuming, the run there must be one of the same config (``run.yaml``) and the same
+        command; a different one is refused (UserInputError naming the first differing
+        key) before anything is rewritten (:func:`motionphysics.io.resume.plan_resume`).
+        """
+        if self.resume and self.rd.holds_run(self.path):
+            from motionphysics.io.resume import plan_resume
+
+            plan_resume(self.path, cfg, command=self.command)
         self.state.update(
             {
                 "schema": PARAMS_SCHEMA,
@@ -430,6 +443,13 @@ class RunWriter:
 
     def write_plots(self, video: np.ndarray, traj, metrics, cfg) -> list[str]:
         """Space-time slices, energy, shape, volume; loss and parameters when optimised."""
+        from motionphysics.io.rundir import output_errors
+
+        # matplotlib writes the files itself: a full disk there is one line too
+        with output_errors(self.path / "plots", library=True):
+            return self._write_plots(video, traj, metrics, cfg)
+
+    def _write_plots(self, video: np.ndarray, traj, metrics, cfg) -> list[str]:
         from motionphysics.io.plots import plot_loss, plot_params, plot_series, space_time_slice
 
         new: list[str] = []
@@ -514,8 +534,10 @@ class RunWriter:
     def export_splats(self, sim_scene, xs, Fs, on_frame=None) -> None:
         """``splats/frame_XXXX.ply`` for every frame (``--export-ply``)."""
         from motionphysics.io.export import export_splats
+        from motionphysics.io.rundir import output_errors
 
-        export_splats(sim_scene, xs, Fs, self.path / "splats", on_frame=on_frame)
+        with output_errors(self.path / "splats", library=True):
+            export_splats(sim_scene, xs, Fs, self.path / "splats", on_frame=on_frame)
         self.add_files("splats/")
 
 
