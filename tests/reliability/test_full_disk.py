@@ -44,13 +44,12 @@ def _digests(run_dir: Path) -> dict[str, str]:
 def _fill(folder: Path) -> Path:
     """Take every free block of the file system of ``folder`` (returns the ballast)."""
     ballast = folder / f"ballast-{uuid.uuid4().hex}"
-    with open(ballast, "wb") as f:
+    with open(ballast, "wb", buffering=0) as f:  # unbuffered: nothing left to flush
         for chunk in (1 << 16, 4096, 512, 1):
             block = b"\0" * chunk
             try:
                 while True:
                     f.write(block)
-                    f.flush()
             except OSError as err:
                 assert err.errno == errno.ENOSPC, err
     return ballast
@@ -122,7 +121,7 @@ def test_full_tmpfs_keeps_the_files_and_ends_in_one_line(
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(yaml.safe_dump(TINY))
     run = tmpfs / "run"
-    state = _fill_at(monkeypatch, stage, lambda path: _fill(path))
+    state = _fill_at(monkeypatch, stage, lambda path: _fill(path.parent))
     rc = main(["--quiet", "simulate", str(cfg), "--out", str(run)])
     assert rc == 1
     _check_failed_run(run, state, capsys, stage)
