@@ -50,7 +50,10 @@ def test_200_iterations_do_not_grow_resident_memory(tmp_path):
 
     true = {**TINY, "material": {"class": "elastic", "density": 1000.0, "E": 2.0e7, "nu": 0.3}}
     (tmp_path / "true.yaml").write_text(yaml.safe_dump(true))
-    assert main(["--quiet", "simulate", str(tmp_path / "true.yaml"), "--out", str(tmp_path / "ref")]) == 0
+    assert (
+        main(["--quiet", "simulate", str(tmp_path / "true.yaml"), "--out", str(tmp_path / "ref")])
+        == 0
+    )
     start = {
         **TINY,
         "material": {"class": "elastic", "density": 1000.0, "E": 2.0e9, "nu": 0.3},

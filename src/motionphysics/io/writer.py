@@ -132,6 +132,79 @@ def _no_sigint():
         signal.signal(signal.SIGINT, old)
 
 
+@contextmanager
+def _child_stderr_held():
+    """Hold what is written to file descriptor 2 (ffmpeg, a child process, writes there
+    directly) while the body runs: replayed when it succeeds, dropped when it fails
+    (the failure is then reported in one line, not in ffmpeg's dozen)."""
+    import os
+    import tempfile
+
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all
+        yield
+        return
+    held = tempfile.TemporaryFile()
+    ok = False
+    try:
+        sys.stderr.flush()
+        os.dup2(held.fileno(), 2)
+        yield
+        ok = True
+    finally:
+        try:
+            sys.stderr.flush()
+        except (OSError, ValueError):
+            pass
+        os.dup2(saved, 2)
+        os.close(saved)
+        if ok:
+            held.seek(0)
+            data = held.read()
+            if data:
+                os.write(2, data)
+        held.close()
+
+
+def _check_mp4(path: Path) -> None:
+    """Raise OSError unless ``path`` is a whole MP4: top-level boxes that tile the file
+    exactly, with ``ftyp``, ``moov`` and ``mdat`` among them."""
+    import errno
+    import os
+    import struct
+
+    size = path.stat().st_size
+    seen: set[bytes] = set()
+    pos = 0
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            head = f.read(8)
+            if len(head) < 8:
+                break
+            n, kind = struct.unpack(">I4s", head)
+            if n == 1:
+                big = f.read(8)
+                if len(big) < 8:
+                    break
+                n = struct.unpack(">Q", big)[0]
+            elif n == 0:
+                n = size - pos
+            if n < 8 or pos + n > size:
+                break
+            seen.add(kind)
+            pos += n
+    if pos != size or not {b"ftyp", b"moov", b"mdat"} <= seen:
+        full = False
+        try:
+            full = os.statvfs(path.parent).f_bavail == 0
+        except OSError:
+            pass
+        code = errno.ENOSPC if full else errno.EIO
+        raise OSError(code, f"the video encoder left an incomplete file ({size} bytes)")
+
+
 def _fps(frame_dt: float) -> float:
     return max(1.0, min(60.0, 1.0 / frame_dt))
 
@@ -391,7 +464,12 @@ class RunWriter:
         from motionphysics.io.video import write_video
 
         with self.rd.writing("video.mp4") as tmp:
-            write_video(video, tmp, _fps(frame_dt))
+            with _child_stderr_held():
+                write_video(video, tmp, _fps(frame_dt))
+            # ffmpeg on a full disk prints its complaint and exits, and imageio returns
+            # as if all went well, leaving a torn file: check it before it replaces
+            # video.mp4 (an OSError here becomes the one-line OutputError).
+            _check_mp4(tmp)
         self.add_files("video.mp4")
 
     def write_trajectory(self, sim_scene, xs, Fs, vs, cfg, density) -> dict[str, np.ndarray]:
