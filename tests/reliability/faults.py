@@ -22,7 +22,8 @@ as the uninterrupted run, compared bit for bit.
 
 Run as a script for the figures of BENCHMARKS.md ("Reliability")::
 
-    PYTHONPATH=src python tests/reliability/faults.py --kills 3 --out /tmp/faults.json
+    PYTHONPATH=src python tests/reliability/faults.py --kills 2 --log-kills 2 \\
+        --seed 1 --out /tmp/faults.json
 """
 
 from __future__ import annotations
@@ -181,14 +182,24 @@ def uninterrupted(cmd: list[str], out: Path) -> float:
     return time.perf_counter() - t0
 
 
-def kill_and_resume(cmd: list[str], out: Path, delay: float) -> dict[str, Any]:
-    """SIGKILL ``cmd`` after ``delay`` s, then ``--resume`` it; what happened."""
+def kill_and_resume(
+    cmd: list[str], out: Path, delay: float, *, after_log_lines: int | None = None
+) -> dict[str, Any]:
+    """SIGKILL ``cmd`` after ``delay`` s (with ``after_log_lines``: ``delay`` s after
+    ``log.jsonl`` reached that many lines, i.e. inside the optimisation), then
+    ``--resume`` it; what happened."""
     proc = subprocess.Popen(
         _cli(*cmd, "--out", str(out)),
         env=_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+    if after_log_lines is not None:
+        log = out / "log.jsonl"
+        while proc.poll() is None:
+            if log.is_file() and len(log.read_text().splitlines()) >= after_log_lines:
+                break
+            time.sleep(0.01)
     try:
         proc.wait(timeout=delay)
         killed = False
@@ -214,8 +225,17 @@ def kill_and_resume(cmd: list[str], out: Path, delay: float) -> dict[str, Any]:
     }
 
 
-def run_faults(root: Path, kills: int, seed: int = 0, cases=CASES) -> dict[str, Any]:
-    """For each case: one uninterrupted run, ``kills`` kill-and-resume runs."""
+ITERATIONS = {"run-refine": 4, "run-lmd": 3, "fit": 4}
+"""Iterations of the optimising cases (for kills inside the optimisation)."""
+
+
+def run_faults(
+    root: Path, kills: int, seed: int = 0, cases=CASES, log_kills: int = 0
+) -> dict[str, Any]:
+    """For each case: one uninterrupted run, ``kills`` kill-and-resume runs at random
+    times, and (optimising cases) ``log_kills`` more at a random moment of up to 1 s
+    after a random iteration's log line (between a log line and its checkpoint, in the
+    next iteration's simulation, render, loss or backward pass)."""
     rng = random.Random(seed)
     commands = prepare(root)
     report: dict[str, Any] = {"seed": seed, "kills_per_case": kills, "cases": {}}
@@ -225,14 +245,19 @@ def run_faults(root: Path, kills: int, seed: int = 0, cases=CASES) -> dict[str, 
         duration = uninterrupted(cmd, ref_dir)
         ref = final_state(ref_dir)
         trials = []
-        for k in range(kills):
+        for k in range(kills + (log_kills if name in ITERATIONS else 0)):
             out = root / f"{name}-kill{k}"
             if out.exists():
                 import shutil
 
                 shutil.rmtree(out)
             # 0.9: a run under other load may be faster than the timed one
-            trial = kill_and_resume(cmd, out, rng.uniform(0.0, 0.9 * duration))
+            if k < kills:
+                trial = kill_and_resume(cmd, out, rng.uniform(0.0, 0.9 * duration))
+            else:
+                line = rng.randint(1, ITERATIONS[name] - 1)
+                trial = kill_and_resume(cmd, out, rng.uniform(0.0, 1.0), after_log_lines=line)
+                trial["after_log_lines"] = line
             if trial["resume_status"] == 0:
                 trial["not_identical"] = differences(ref, final_state(out))
             trial["survived"] = trial["resume_status"] == 0 and not trial.get("not_identical")
@@ -255,9 +280,10 @@ if __name__ == "__main__":
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--root", default="/tmp/mp-faults")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--log-kills", type=int, default=0)
     ap.add_argument("--cases", nargs="*", default=list(CASES))
     a = ap.parse_args()
-    rep = run_faults(Path(a.root), a.kills, a.seed, a.cases)
+    rep = run_faults(Path(a.root), a.kills, a.seed, a.cases, a.log_kills)
     text = json.dumps(rep, indent=1)
     if a.out:
         Path(a.out).write_text(text + "\n")

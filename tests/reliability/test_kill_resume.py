@@ -1,0 +1,40 @@
+"""SIGKILL at a random point of ``run`` (plain, refinement with a cheap loss, the tiny
+CogVideoX prior with ``lmd``) and ``fit``, then ``--resume``: status 0 and the final
+parameters, theta, loss states (the LMD extractor, its AdamW moments and EMA) and
+trajectory of an uninterrupted run, bit for bit. See ``faults.py`` (also the script
+that produces the BENCHMARKS.md figures)."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+from faults import CASES, differences, final_state, kill_and_resume, prepare, uninterrupted
+
+
+@pytest.fixture(scope="module")
+def commands(tmp_path_factory):
+    root = tmp_path_factory.mktemp("faults")
+    return root, prepare(root)
+
+
+@pytest.mark.slow  # three to five CLI processes per case at tiny size: ~1-3 min each
+@pytest.mark.parametrize("case", CASES)
+def test_sigkill_then_resume_ends_as_uninterrupted(commands, case):
+    root, cmds = commands
+    cmd = cmds[case]
+    duration = uninterrupted(cmd, root / f"{case}-a")
+    ref = final_state(root / f"{case}-a")
+    rng = random.Random(f"kill-{case}")
+    # one kill early (scene / material stages or imports), one in the second half
+    for k, (lo, hi) in enumerate([(0.1, 0.45), (0.45, 0.9)]):
+        out = root / f"{case}-kill{k}"
+        trial = kill_and_resume(cmd, out, rng.uniform(lo, hi) * duration)
+        assert trial["resume_status"] == 0, trial
+        if trial["killed"]:
+            assert trial["resume_message"].startswith("motionphysics: "), trial
+            assert (
+                "resuming" in trial["resume_message"]
+                or "nothing to resume" in (trial["resume_message"])
+            ), trial
+        assert differences(ref, final_state(out)) == [], trial
