@@ -9,7 +9,15 @@ from __future__ import annotations
 import random
 
 import pytest
-from faults import CASES, differences, final_state, kill_and_resume, prepare, uninterrupted
+from faults import (
+    CASES,
+    ITERATIONS,
+    differences,
+    final_state,
+    kill_and_resume,
+    prepare,
+    uninterrupted,
+)
 
 
 @pytest.fixture(scope="module")
@@ -26,10 +34,14 @@ def test_sigkill_then_resume_ends_as_uninterrupted(commands, case):
     duration = uninterrupted(cmd, root / f"{case}-a")
     ref = final_state(root / f"{case}-a")
     rng = random.Random(f"kill-{case}")
-    # one kill early (scene / material stages or imports), one in the second half
-    for k, (lo, hi) in enumerate([(0.1, 0.45), (0.45, 0.9)]):
+    # one kill at a random time; for an optimising case one more inside the
+    # optimisation (up to 1 s after a random iteration's log line)
+    plans = [(rng.uniform(0.1, 0.9) * duration, None)]
+    if case in ITERATIONS:
+        plans.append((rng.uniform(0.0, 1.0), rng.randint(1, ITERATIONS[case] - 1)))
+    for k, (delay, line) in enumerate(plans):
         out = root / f"{case}-kill{k}"
-        trial = kill_and_resume(cmd, out, rng.uniform(lo, hi) * duration)
+        trial = kill_and_resume(cmd, out, delay, after_log_lines=line)
         assert trial["resume_status"] == 0, trial
         if trial["killed"]:
             assert trial["resume_message"].startswith("motionphysics: "), trial
