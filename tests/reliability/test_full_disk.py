@@ -148,3 +148,64 @@ def test_injected_enospc_at_the_writer(tmp_path, capsys, monkeypatch):
     rc = main(["--quiet", "simulate", str(cfg), "--out", str(run)])
     assert rc == 1
     _check_failed_run(run, state, capsys, "write outputs")
+
+
+# -- the pieces, without a simulation ---------------------------------------------------
+def test_atomic_writes_on_a_full_tmpfs_keep_the_old_file(tmpfs):
+    from motionphysics.errors import OutputError
+    from motionphysics.io.rundir import RunDirectory
+
+    rd = RunDirectory(tmpfs / "run")
+    rd.write_json("params.json", {"partial": True, "stage": "start"})
+    old = (tmpfs / "run" / "params.json").read_bytes()
+    ballast = _fill(tmpfs)
+    for write in (
+        lambda: rd.write_json("params.json", {"partial": True, "big": "x" * 100_000}),
+        lambda: rd.append_jsonl("log.jsonl", {"iteration": 0, "pad": "y" * 100_000}),
+    ):
+        with pytest.raises(OutputError, match="no space left") as info:
+            write()
+        assert "\n" not in str(info.value) and str(tmpfs / "run") in str(info.value)
+    assert (tmpfs / "run" / "params.json").read_bytes() == old
+    assert not [n for n in os.listdir(tmpfs / "run") if n.startswith(".")]
+    ballast.unlink()
+
+
+def test_a_torn_video_never_replaces_video_mp4(tmp_path):
+    import numpy as np
+
+    from motionphysics.errors import OutputError
+    from motionphysics.io.video import write_video
+    from motionphysics.io.writer import _check_mp4
+
+    rng = np.random.default_rng(0)
+    good = write_video(rng.integers(0, 255, (6, 16, 16, 3), dtype=np.uint8), tmp_path / "a.mp4", 10)
+    _check_mp4(good)  # a whole file passes
+    data = good.read_bytes()
+    for cut in (0, 8, len(data) // 2, len(data) - 1):
+        torn = tmp_path / f"torn{cut}.mp4"
+        torn.write_bytes(data[:cut])
+        with pytest.raises(OSError, match="incomplete"):
+            _check_mp4(torn)
+    # through the writer: the previous video.mp4 stays, one line names the file
+    from motionphysics.io.writer import RunWriter
+
+    w = RunWriter(tmp_path / "run", command="simulate")
+    w.rd.write_bytes("video.mp4", data)
+    import motionphysics.io.video as video
+
+    real = video.write_video
+
+    def torn_writer(frames, path, fps):
+        real(frames, path, fps)
+        Path(path).write_bytes(data[: len(data) // 3])  # what ffmpeg leaves on a full disk
+
+    try:
+        video.write_video = torn_writer
+        with pytest.raises(OutputError, match="video.mp4") as info:
+            w.write_video(rng.integers(0, 255, (6, 16, 16, 3), dtype=np.uint8), 0.1)
+    finally:
+        video.write_video = real
+    assert "\n" not in str(info.value)
+    assert (tmp_path / "run" / "video.mp4").read_bytes() == data
+    assert not [n for n in os.listdir(tmp_path / "run") if n.startswith(".")]
