@@ -233,7 +233,7 @@ def run_faults(
     root: Path, kills: int, seed: int = 0, cases=CASES, log_kills: int = 0
 ) -> dict[str, Any]:
     """For each case: one uninterrupted run, ``kills`` kill-and-resume runs at random
-    times, and (optimising cases) ``log_kills`` more at a random moment of up to 1 s
+    times, and (optimising cases) ``log_kills`` more at a random moment of up to 0.15 s
     after a random iteration's log line (between a log line and its checkpoint, in the
     next iteration's simulation, render, loss or backward pass)."""
     rng = random.Random(seed)
@@ -256,7 +256,7 @@ def run_faults(
                 trial = kill_and_resume(cmd, out, rng.uniform(0.0, 0.9 * duration))
             else:
                 line = rng.randint(1, ITERATIONS[name] - 1)
-                trial = kill_and_resume(cmd, out, rng.uniform(0.0, 1.0), after_log_lines=line)
+                trial = kill_and_resume(cmd, out, rng.uniform(0.0, 0.15), after_log_lines=line)
                 trial["after_log_lines"] = line
             if trial["resume_status"] == 0:
                 trial["not_identical"] = differences(ref, final_state(out))
