@@ -274,7 +274,14 @@ def plan_resume(
     if stage in _BEFORE_OPTIMISE:
         tail = f"'{stage}' cannot continue mid-way: restarting it and the stages after it"
     elif stage == OPTIMISE_STAGE:
-        if done:
+        # stop_reason is set by the last checkpoint of a finished optimisation
+        # ('iterations', 'converged' or 'nan'), None while it runs
+        if progress is not None and progress[1] is not None:
+            tail = (
+                f"the optimisation had finished ({done}{of} iterations, checkpoint.pt): it is "
+                "not repeated; the stages after it run (from 'simulate' at frame 0)"
+            )
+        elif done:
             tail = (
                 f"the optimisation continues after iteration {done}{of} (checkpoint.pt; the "
                 "scene and material stages before it are rebuilt from the config)"
