@@ -44,9 +44,8 @@ def test_sigkill_then_resume_ends_as_uninterrupted(commands, case):
         trial = kill_and_resume(cmd, out, delay, after_log_lines=line)
         assert trial["resume_status"] == 0, trial
         if trial["killed"]:
-            assert trial["resume_message"].startswith("motionphysics: "), trial
-            assert (
-                "resuming" in trial["resume_message"]
-                or "nothing to resume" in (trial["resume_message"])
-            ), trial
+            # killed after the final params.json, the run is complete: also an answer
+            msg = trial["resume_message"]
+            assert msg.startswith("motionphysics: "), trial
+            assert any(w in msg for w in ("resuming", "nothing to resume", "already complete"))
         assert differences(ref, final_state(out)) == [], trial
