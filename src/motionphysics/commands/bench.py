@@ -13,6 +13,7 @@ BENCH_TARGETS = [
     "motionphysics.render.bench",
     "motionphysics.sim.bench",
     "motionphysics.optimize.bench",
+    "motionphysics.optimize.bench_fit",
 ]
 
 

@@ -15,7 +15,7 @@ from motionphysics.errors import UserInputError
 
 
 def _main(args) -> int:
-    from motionphysics.commands.run import default_out
+    from motionphysics.commands.run import default_out, plan_output
     from motionphysics.io.writer import print_summary
     from motionphysics.optimize.fit import run_fit
     from motionphysics.progress import Progress
@@ -29,13 +29,25 @@ def _main(args) -> int:
     cfg = load_run_config(args.config, overrides)
     out = Path(args.out) if args.out else default_out(args.config, "fit")
     quiet = getattr(args, "quiet", False)
+    total = cfg.optimize.iterations if args.iters is None else int(args.iters)
+    expect = {"--iters": ("fit.iterations", total)}
+    ref = Path(args.reference)
+    if ref.is_file():
+        # the same digest run_fit records (params.json: reference.sha256)
+        from motionphysics.io.reference import _digest
+
+        expect["--reference"] = ("reference.sha256", _digest(ref))
+    mode = plan_output(args, out, cfg, "fit", expect=expect, iterations=total)
+    if mode is None:
+        return 0  # --resume of a complete fit: nothing to do, nothing rewritten
+    resume, force = mode
     with Progress(quiet=quiet, verbose=getattr(args, "verbose", False)) as prog:
         result = run_fit(
             cfg,
             args.reference,
             out,
-            resume=args.resume,
-            force=args.force,
+            resume=resume,
+            force=force,
             iterations=args.iters,
             progress=prog,
             config_origin=args.config,
@@ -61,8 +73,16 @@ def register(subparsers) -> None:
         help=".mp4/.gif or .npz with 'frames' (video) or 'x' (trajectory.npz of simulate)",
     )
     p.add_argument("--out", metavar="DIR", help="run directory (default: runs/<config name>)")
-    p.add_argument("--resume", action="store_true", help="continue a killed fit in --out")
-    p.add_argument("--force", action="store_true", help="overwrite a run already in --out")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue a killed fit of the same config and reference in --out",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite a run already in --out (with --resume: only when it differs)",
+    )
     p.add_argument(
         "--iters", type=int, metavar="N", help="optimisation iterations (default: the config's)"
     )

@@ -186,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
         where = f"--from {args.from_file}: line {k + 1}: " if args.from_file else ""
         for w in est.warnings:
             print(f"motionphysics: {where}warning: {w}", file=sys.stderr)
+        for n in est.notes:
+            print(f"motionphysics: {where}note: {n}", file=sys.stderr)
     try:
         if args.from_file:
             for est in estimates:

@@ -24,8 +24,17 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``run`` and ``simulate`` (``--out``, ``--device``, ``--resume`` ...)."""
     p.add_argument("--out", metavar="DIR", help="run directory (default: runs/<config name>)")
     p.add_argument("--device", choices=["cpu", "cuda"], help="where to simulate and render")
-    p.add_argument("--resume", action="store_true", help="continue a partial run in --out")
-    p.add_argument("--force", action="store_true", help="overwrite a run already in --out")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue an interrupted run of the same config in --out (a complete one: "
+        "nothing to do)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite a run already in --out (with --resume: only when its config differs)",
+    )
     p.add_argument(
         "--export-ply",
         action="store_true",
@@ -51,6 +60,45 @@ def add_display_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def plan_output(
+    args, out: Path, cfg, command: str, *, expect=None, iterations: int | None = None
+) -> tuple[bool, bool] | None:
+    """``--resume`` / ``--force`` for ``out``: ``(resume, force)`` for the writer, or
+    ``None`` when ``--resume`` finds the run complete (the caller then writes nothing).
+
+    With ``--resume`` one line on stderr says what happens (see
+    :func:`motionphysics.io.resume.plan_resume`); a run of a different config is refused
+    (UserInputError naming the first differing key) unless ``--force`` is given too.
+    """
+    import sys
+
+    from motionphysics.io.resume import plan_resume
+
+    if not getattr(args, "resume", False):
+        return False, bool(getattr(args, "force", False))
+    plan = plan_resume(
+        out,
+        cfg,
+        command=command,
+        force=bool(getattr(args, "force", False)),
+        expect=expect,
+        iterations=iterations,
+    )
+    print(f"motionphysics: {plan.message}", file=sys.stderr, flush=True)
+    if plan.action == "complete":
+        if not getattr(args, "quiet", False):
+            from motionphysics.io.resume import completed_result
+            from motionphysics.io.writer import print_summary
+
+            print_summary(completed_result(out))
+        return None
+    if plan.action == "continue":
+        return True, False
+    if plan.action == "restart":
+        return False, True
+    return False, bool(getattr(args, "force", False))
+
+
 def execute(
     args,
     cfg,
@@ -62,10 +110,17 @@ def execute(
     config_origin: str = "<config>",
 ) -> int:
     """Run the pipeline with a progress display and print the summary."""
-    from motionphysics.pipeline import print_summary, run_pipeline
+    from motionphysics.pipeline import print_summary, run_pipeline, wants_refinement
     from motionphysics.progress import Progress
 
     out = Path(args.out) if args.out else default_out(getattr(args, "config", None), command)
+    refine = optimise and wants_refinement(cfg)
+    mode = plan_output(
+        args, out, cfg, command, iterations=cfg.optimize.iterations if refine else None
+    )
+    if mode is None:
+        return 0  # --resume of a complete run: nothing to do, nothing rewritten
+    resume, force = mode
     with Progress(
         quiet=getattr(args, "quiet", False), verbose=getattr(args, "verbose", False)
     ) as prog:
@@ -75,8 +130,8 @@ def execute(
             init_backend=init_backend,
             params_file=params_file,
             optimise=optimise,
-            resume=args.resume,
-            force=args.force,
+            resume=resume,
+            force=force,
             progress=prog,
             config_origin=config_origin,
             command=command,

@@ -81,6 +81,10 @@ class MaterialEstimate:
     """kb: the prompt words that matched the chosen entry (None: similarity only)."""
     warnings: list[str] = field(default_factory=list)
     """Lines the user must see (kb: "not sure: ...", non-English prompt)."""
+    notes: list[str] = field(default_factory=list)
+    """Hints about substitutions already listed in ``clamped`` (kb: the entry's real value
+    lies outside the class range, and how to simulate it anyway); ``init`` prints them,
+    a run lists the substitutions in its summary instead."""
 
     @property
     def params(self) -> MaterialParams:
@@ -105,6 +109,7 @@ class MaterialEstimate:
             "prompt": self.prompt,
             "matched": self.matched,
             "warnings": list(self.warnings),
+            "notes": list(self.notes),
         }
 
     def to_json(self, indent: int | None = None) -> str:
@@ -187,10 +192,11 @@ def _from_kb(match, prompt: str) -> MaterialEstimate:
         kind = "range floor" if real < used else "clamped"
         clamped.append(Clamp(k, float(real), float(used), kind, "kb"))
     warnings = list(getattr(match, "warnings", []))
+    notes = []
     for c in clamped:
         if max(c.original, c.clamped) > 3.0 * min(c.original, c.clamped) > 0:
             side = "below the floor" if c.kind == "range floor" else "outside the range"
-            warnings.append(
+            notes.append(
                 f"kb: the real {c.field} of {e.name} ({c.original:.3g}) is {side} of the "
                 f"{match.cls} class ({c.clamped:.3g} is used); write material.{c.field}: "
                 f"{c.original:.3g} in the config to simulate the real value"
@@ -208,6 +214,7 @@ def _from_kb(match, prompt: str) -> MaterialEstimate:
         source=f"{e.name}: {e.source}",
         matched=getattr(match, "matched", None),
         warnings=warnings,
+        notes=notes,
     )
 
 

@@ -8,6 +8,10 @@ Layout (README, "Run directory")::
 Every file is written to a temporary name in the same folder and moved into place
 with ``os.replace``, so a reader (or a run killed half-way) sees either the old file
 or the new one, never a torn one. ``log.jsonl`` is appended line by line and flushed.
+A write that fails for a reason of the machine (a full disk, an I/O error, the video
+encoder dying) removes its temporary file, leaves the previous files as they were and
+raises :class:`~motionphysics.errors.OutputError` (exit 1, one line naming the file);
+a location the user cannot write (permission, read-only) is a UserInputError (exit 2).
 
 A directory that already holds a run is refused unless the caller asks to resume it
 or to overwrite it (``--force`` deletes only the files a run writes, never anything
@@ -30,13 +34,14 @@ from typing import Any
 
 import numpy as np
 
-from motionphysics.errors import UserInputError
+from motionphysics.errors import OutputError, UserInputError
 
 __all__ = [
     "RUN_FILES",
     "RUN_DIRS",
     "RunDirectory",
     "atomic_write",
+    "output_errors",
     "write_trajectory",
     "read_trajectory",
     "TRAJECTORY_KEYS",
@@ -63,40 +68,98 @@ TRAJECTORY_KEYS = ("x", "t", "det_F")
 """Keys every ``trajectory.npz`` holds; see :func:`write_trajectory` for the rest."""
 
 
+def _reason(err: BaseException, folder: Path) -> str:
+    """Why a write failed, in words (``no space left on the device`` ...).
+
+    Library writers (ffmpeg through imageio, torch) often lose the errno; a folder whose
+    file system has no free block is then still named as full."""
+    from motionphysics.io.paths import _why
+
+    if isinstance(err, OSError) and err.errno is not None:
+        return _why(err)
+    try:
+        st = os.statvfs(folder)
+        if st.f_bavail == 0:
+            return "no space left on the device"
+    except OSError:
+        pass
+    if isinstance(err, BrokenPipeError) or "broken pipe" in str(err).lower():
+        return "the video encoder (ffmpeg) stopped (broken pipe)"
+    first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+    return first[:200]
+
+
+@contextmanager
+def output_errors(path: str | Path, *, library: bool = False) -> Iterator[None]:
+    """Turn a failed write of ``path`` into one line.
+
+    OSError of the location (permission, read-only file system): UserInputError (exit
+    2). Any other OSError (ENOSPC, EDQUOT, EIO, EFBIG ...), and with ``library`` a
+    RuntimeError / ValueError of a library writer (ffmpeg, matplotlib, torch):
+    OutputError (exit 1). The message names the file and says the run directory keeps
+    what was written before.
+    """
+    from motionphysics.io.paths import USER_ERRNOS
+
+    path = Path(path)
+    kinds: tuple[type[BaseException], ...] = (
+        (OSError, RuntimeError, ValueError) if library else (OSError,)
+    )
+    try:
+        yield
+    except kinds as err:
+        why = _reason(err, path.parent)
+        if isinstance(err, OSError) and err.errno in USER_ERRNOS:
+            raise UserInputError(f"{path}: cannot write ({why}); choose another --out") from None
+        raise OutputError(
+            f"{path}: could not write ({why}); the files written before it are intact "
+            "(params.json says partial); make room and rerun with --resume"
+        ) from None
+
+
 @contextmanager
 def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[Any]:
     """Open a temporary sibling of ``path`` for writing; move it into place on success.
 
     On any exception (Ctrl-C included) the temporary file is removed and ``path``
-    keeps its previous content.
+    keeps its previous content; an OSError of writing becomes an OutputError /
+    UserInputError (:func:`output_errors`).
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    f = open(tmp, mode)  # noqa: SIM115 - closed below on every path
-    try:
-        yield f
-        f.flush()
-        os.fsync(f.fileno())
-        f.close()
-        os.replace(tmp, path)
-    except BaseException:
-        f.close()
-        tmp.unlink(missing_ok=True)
-        raise
+    with output_errors(path):
+        f = open(tmp, mode)  # noqa: SIM115 - closed below on every path
+        try:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+            f.close()
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                f.close()  # may raise again (ENOSPC on the final flush)
+            except OSError:
+                pass
+            tmp.unlink(missing_ok=True)
+            raise
 
 
 @contextmanager
 def _atomic_path(path: Path) -> Iterator[Path]:
     """Yield a temporary path to write with a library (ffmpeg, matplotlib); then replace."""
     tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    try:
-        yield tmp
-        if not tmp.exists():
-            raise RuntimeError(f"{path}: the writer produced no file")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with output_errors(path, library=True):
+        try:
+            yield tmp
+            if not tmp.exists():
+                raise RuntimeError(f"{path}: the writer produced no file")
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            # io.video writes its own ``.<stem>.partial<suffix>`` beside the temporary
+            for partial in path.parent.glob(f".{tmp.stem}.partial*"):
+                partial.unlink(missing_ok=True)
+            raise
 
 
 def _json_default(obj: Any) -> Any:
@@ -220,8 +283,20 @@ class RunDirectory:
     def file(self, name: str) -> Path:
         """Path of a file in the run (sub-folders created)."""
         p = self.path / name
-        p.parent.mkdir(parents=True, exist_ok=True)
+        with output_errors(p):
+            p.parent.mkdir(parents=True, exist_ok=True)
         return p
+
+    def clean_temporaries(self) -> list[str]:
+        """Remove temporaries a killed process left (``.NAME.tmp-PID``, ``.tmp-PID-NAME``,
+        ``.STEM.partial.EXT``); a resumed run starts from the finished files only."""
+        gone = []
+        for pattern in (".*tmp-*", ".tmp-*", ".*.partial*"):
+            for tmp in self.path.glob(pattern):
+                if tmp.is_file():
+                    tmp.unlink(missing_ok=True)
+                    gone.append(tmp.name)
+        return gone
 
     def exists(self, name: str) -> bool:
         return (self.path / name).exists()
@@ -257,7 +332,8 @@ class RunDirectory:
         line = json.dumps(
             _finite(json.loads(json.dumps(record, default=_json_default))), allow_nan=False
         )
-        with open(self.file(name), "a", encoding="utf-8") as f:
+        p = self.file(name)
+        with output_errors(p), open(p, "a", encoding="utf-8") as f:
             f.write(line + "\n")
             f.flush()
             os.fsync(f.fileno())

@@ -139,6 +139,79 @@ def _no_sigint():
         signal.signal(signal.SIGINT, old)
 
 
+@contextmanager
+def _child_stderr_held():
+    """Hold what is written to file descriptor 2 (ffmpeg, a child process, writes there
+    directly) while the body runs: replayed when it succeeds, dropped when it fails
+    (the failure is then reported in one line, not in ffmpeg's dozen)."""
+    import os
+    import tempfile
+
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all
+        yield
+        return
+    held = tempfile.TemporaryFile()
+    ok = False
+    try:
+        sys.stderr.flush()
+        os.dup2(held.fileno(), 2)
+        yield
+        ok = True
+    finally:
+        try:
+            sys.stderr.flush()
+        except (OSError, ValueError):
+            pass
+        os.dup2(saved, 2)
+        os.close(saved)
+        if ok:
+            held.seek(0)
+            data = held.read()
+            if data:
+                os.write(2, data)
+        held.close()
+
+
+def _check_mp4(path: Path) -> None:
+    """Raise OSError unless ``path`` is a whole MP4: top-level boxes that tile the file
+    exactly, with ``ftyp``, ``moov`` and ``mdat`` among them."""
+    import errno
+    import os
+    import struct
+
+    size = path.stat().st_size
+    seen: set[bytes] = set()
+    pos = 0
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            head = f.read(8)
+            if len(head) < 8:
+                break
+            n, kind = struct.unpack(">I4s", head)
+            if n == 1:
+                big = f.read(8)
+                if len(big) < 8:
+                    break
+                n = struct.unpack(">Q", big)[0]
+            elif n == 0:
+                n = size - pos
+            if n < 8 or pos + n > size:
+                break
+            seen.add(kind)
+            pos += n
+    if pos != size or not {b"ftyp", b"moov", b"mdat"} <= seen:
+        full = False
+        try:
+            full = os.statvfs(path.parent).f_bavail == 0
+        except OSError:
+            pass
+        code = errno.ENOSPC if full else errno.EIO
+        raise OSError(code, f"the video encoder left an incomplete file ({size} bytes)")
+
+
 def _fps(frame_dt: float) -> float:
     return max(1.0, min(60.0, 1.0 / frame_dt))
 
@@ -176,6 +249,10 @@ class RunWriter:
 
         self.rd = RunDirectory(out, resume=resume, force=force)
         self.path = self.rd.path
+        self.resume = bool(resume)
+        if self.resume:
+            # temporaries of a killed process are never finished files
+            self.rd.clean_temporaries()
         self.command = command
         self.progress = progress or Progress(quiet=True)
         self.observer = observer or NullObserver()
@@ -188,7 +265,16 @@ class RunWriter:
 
     # -- lifecycle -----------------------------------------------------------------------
     def begin(self, cfg, *, seed: int, device: str, **extra: Any) -> None:
-        """Write ``run.yaml`` and a first ``params.json`` (``partial: true``)."""
+        """Write ``run.yaml`` and a first ``params.json`` (``partial: true``).
+
+        Resuming, the run there must be one of the same config (``run.yaml``) and the same
+        command; a different one is refused (UserInputError naming the first differing
+        key) before anything is rewritten (:func:`motionphysics.io.resume.plan_resume`).
+        """
+        if self.resume and self.rd.holds_run(self.path):
+            from motionphysics.io.resume import plan_resume
+
+            plan_resume(self.path, cfg, command=self.command)
         self.state.update(
             {
                 "schema": PARAMS_SCHEMA,
@@ -448,7 +534,12 @@ class RunWriter:
         from motionphysics.io.video import write_video
 
         with self.rd.writing(name) as tmp:
-            write_video(video, tmp, _fps(frame_dt))
+            with _child_stderr_held():
+                write_video(video, tmp, _fps(frame_dt))
+            # ffmpeg on a full disk prints its complaint and exits, and imageio returns
+            # as if all went well, leaving a torn file: check it before it replaces
+            # the previous file (an OSError here becomes the one-line OutputError).
+            _check_mp4(tmp)
         self.add_files(name)
 
     def write_trajectory(
@@ -550,6 +641,13 @@ class RunWriter:
 
     def write_plots(self, video: np.ndarray, traj, metrics, cfg) -> list[str]:
         """Space-time slices, energy, shape, volume; loss and parameters when optimised."""
+        from motionphysics.io.rundir import output_errors
+
+        # matplotlib writes the files itself: a full disk there is one line too
+        with output_errors(self.path / "plots", library=True):
+            return self._write_plots(video, traj, metrics, cfg)
+
+    def _write_plots(self, video: np.ndarray, traj, metrics, cfg) -> list[str]:
         from motionphysics.io.plots import plot_loss, plot_params, plot_series, space_time_slice
 
         new: list[str] = []
@@ -634,8 +732,10 @@ class RunWriter:
     def export_splats(self, sim_scene, xs, Fs, on_frame=None) -> None:
         """``splats/frame_XXXX.ply`` for every frame (``--export-ply``)."""
         from motionphysics.io.export import export_splats
+        from motionphysics.io.rundir import output_errors
 
-        export_splats(sim_scene, xs, Fs, self.path / "splats", on_frame=on_frame)
+        with output_errors(self.path / "splats", library=True):
+            export_splats(sim_scene, xs, Fs, self.path / "splats", on_frame=on_frame)
         self.add_files("splats/")
 
 

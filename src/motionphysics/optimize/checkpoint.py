@@ -10,6 +10,7 @@ or the new checkpoint, never a torn one.
 
 from __future__ import annotations
 
+import io
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +55,9 @@ class Checkpoint:
     """Hash of the problem and the optimisation config the run started with."""
     loss_states: list[dict[str, Any]] = field(default_factory=list)
     """``state_dict()`` of each configured loss, in order (e.g. a learnable extractor)."""
+    simulator: dict[str, Any] = field(default_factory=dict)
+    """Bookkeeping of the simulator (``substeps`` count and ``changes`` under ``substeps:
+    auto``), so a resumed run reports the same re-resolutions as an uninterrupted one."""
 
 
 def capture_rng(generator: torch.Generator) -> dict[str, Any]:
@@ -88,9 +92,14 @@ def save_checkpoint(ckpt: Checkpoint, path: str | Path) -> None:
         "message": ckpt.message,
         "fingerprint": ckpt.fingerprint,
         "loss_states": list(ckpt.loss_states),
+        "simulator": dict(ckpt.simulator),
     }
+    # Serialised in memory first: torch's zip writer reports a full disk as a bare
+    # RuntimeError; a plain file write keeps the errno (atomic_write -> OutputError).
+    buf = io.BytesIO()
+    torch.save(payload, buf)
     with atomic_write(path, "wb") as fh:
-        torch.save(payload, fh)
+        fh.write(buf.getbuffer())
 
 
 def load_checkpoint(path: str | Path) -> Checkpoint:
@@ -121,4 +130,5 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         message=data.get("message", ""),
         fingerprint=data.get("fingerprint", ""),
         loss_states=list(data.get("loss_states") or []),
+        simulator=dict(data.get("simulator") or {}),
     )

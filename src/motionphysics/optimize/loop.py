@@ -96,6 +96,8 @@ def _finite(x: float) -> float | None:
 
 def _truncate_log(path: Path, next_iteration: int) -> None:
     """Keep only log lines of iterations before ``next_iteration``."""
+    from motionphysics.io.rundir import atomic_write
+
     if not path.exists():
         return
     kept = []
@@ -106,9 +108,8 @@ def _truncate_log(path: Path, next_iteration: int) -> None:
             break  # a torn last line from a kill mid-write
         if int(rec.get("iteration", -1)) < next_iteration:
             kept.append(line)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text("".join(k + "\n" for k in kept))
-    os.replace(tmp, path)
+    with atomic_write(path, "w") as fh:
+        fh.write("".join(k + "\n" for k in kept))
 
 
 def _clean(obj: Any) -> Any:
@@ -123,7 +124,9 @@ def _clean(obj: Any) -> Any:
 
 
 def _append_log(path: Path, record: dict[str, Any]) -> None:
-    with open(path, "a") as fh:
+    from motionphysics.io.rundir import output_errors
+
+    with output_errors(path), open(path, "a") as fh:
         fh.write(json.dumps(_clean(record), allow_nan=False) + "\n")
         fh.flush()
         os.fsync(fh.fileno())
@@ -141,6 +144,31 @@ def horizon(iteration: int, total: int, num_frames: int, curriculum: float) -> i
         return num_frames
     h0 = min(num_frames, max(2, num_frames // 4 + 1))
     return int(h0 + (num_frames - h0) * iteration // ramp)
+
+
+def _simulator_state(simulator: Any) -> dict[str, Any]:
+    """The simulator's bookkeeping worth keeping across a resume (duck-typed: the
+    assembly's BridgeSimulator has ``substeps`` and ``changes``; test doubles need not)."""
+    state: dict[str, Any] = {}
+    if isinstance(getattr(simulator, "changes", None), list):
+        state["changes"] = [list(c) for c in simulator.changes]
+    if getattr(simulator, "simulation", None) is not None and hasattr(simulator, "substeps"):
+        state["substeps"] = int(simulator.substeps)
+    return state
+
+
+def _restore_simulator(simulator: Any, state: dict[str, Any]) -> None:
+    """Put back :func:`_simulator_state`: the count the last iteration ran with (so the
+    first resumed iteration re-resolves from it, as the uninterrupted run did) and the
+    list of changes so far. The numbers do not depend on it (the count is a function of
+    the current parameters); the record of re-resolutions does."""
+    if "changes" in state and isinstance(getattr(simulator, "changes", None), list):
+        simulator.changes[:] = [tuple(c) for c in state["changes"]]
+    sim = getattr(simulator, "simulation", None)
+    n = state.get("substeps")
+    if sim is not None and n is not None and int(sim.substeps) != int(n):
+        sim.substeps = int(n)
+        sim._rollout = None  # rebuilt with the restored count (as BridgeSimulator._retime)
 
 
 def _flat(theta: dict[str, Tensor]) -> Tensor:
@@ -229,6 +257,7 @@ def optimize(
             if i < len(stateful) and state:
                 stateful[i].load_state_dict(state)
         restore_rng(ck.rng, generator)
+        _restore_simulator(problem.simulator, ck.simulator)
         start, history, calm = ck.next_iteration, ck.history, ck.calm
         _truncate_log(log_path, start)
         if ck.stop_reason == "converged" or start >= total:
@@ -345,6 +374,7 @@ def optimize(
                     message,
                     fingerprint,
                     [lo.state_dict() for lo in stateful],
+                    _simulator_state(problem.simulator),
                 ),
                 ckpt_path,
             )
@@ -382,6 +412,7 @@ def optimize(
                 message,
                 fingerprint,
                 [lo.state_dict() for lo in stateful],
+                _simulator_state(problem.simulator),
             ),
             ckpt_path,
         )
