@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -52,14 +53,15 @@ def test_not_yaml_mapping(tmp_path, capsys):
     assert "mapping" in _one_line_error(capsys)
 
 
-def test_prior_not_available(tmp_path, capsys):
-    # This build ships no video prior (the prior issue adds motionphysics.priors): asking
-    # for one is bad input, refused before --out is touched. Replace this test when the
-    # tiny prior lands.
-    assert main(["run", str(TINY), "--prior", "tiny", "--out", str(tmp_path / "o")]) == 2
-    err = _one_line_error(capsys)
-    assert "optimize.prior" in err and "not available in this build" in err
-    assert not (tmp_path / "o").exists()
+def test_embedded_prior_refines_without_a_path(tmp_path):
+    # The embedded tiny prior ships with the package: --prior tiny needs no --prior-path.
+    out = tmp_path / "o"
+    argv = ["run", str(TINY), "--prior", "tiny", "--loss", "lmd", "--iters", "1", "--out", str(out)]
+    assert main([*argv, "--quiet"]) == 0
+    recs = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    assert len(recs) == 1 and math.isfinite(recs[0]["loss"])
+    p = json.loads((out / "params.json").read_text())
+    assert p["optimise"]["prior"] == "tiny" and len(p["history"]) == 1
 
 
 def test_bad_params_file(tmp_path, capsys):
