@@ -78,7 +78,11 @@ def test_killed_batch_left_consistent_state(resumed):
     done = resumed["done_at_kill"]
     assert 1 <= len(done) < 4
     rows = {r["job"]: r for r in resumed["table_at_kill"]}
-    assert len(rows) == 4 and all(rows[k]["status"] == "complete" for k in done)
+    assert len(rows) == 4
+    # The table is rebuilt after each job; a kill between a job's own status file and
+    # that rebuild leaves the table one job behind (the next batch rebuilds it).
+    lagging = [k for k in done if rows[k]["status"] != "complete"]
+    assert len(lagging) <= 1, lagging
     # The job in flight was killed with the batch: its directory says so.
     in_flight = [k for k, r in resumed["records_at_kill"].items() if r["status"] == "running"]
     assert len(in_flight) <= 1
