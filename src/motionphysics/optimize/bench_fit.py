@@ -210,14 +210,28 @@ def _run(args) -> int:
 
 def register_target(sub) -> None:
     p = sub.add_parser(
-        "fit", help="time one fit iteration, split by stage, against simulate", description=__doc__
+        "fit",
+        help="time one fit iteration, split by stage, against simulate",
+        description=(
+            "Time exactly the path motionphysics fit runs: one object dropped on a "
+            "frictional floor, fitted against a reference trajectory simulated with the "
+            "true material, every frame supervised. Prints per iteration the split "
+            "(simulate, render, loss, backward, step, bookkeeping) and the ratio of an "
+            "iteration to a forward simulate of the same frames, timed alternately so "
+            "both see the same load (wall clock and process CPU time)."
+        ),
     )
     p.add_argument("--particles", type=int, default=4000, help="particles (default 4000)")
     p.add_argument("--grid", type=int, default=32, help="grid cells (default 32)")
     p.add_argument("--frames", type=int, default=24, help="frames (default 24)")
     p.add_argument("--substeps", default="auto", help="substeps per frame or 'auto' (default)")
     p.add_argument("--iterations", type=int, default=3, help="timed iterations (default 3)")
-    p.add_argument("--loss", choices=["trajectory", "video"], default="trajectory")
+    p.add_argument(
+        "--loss",
+        choices=["trajectory", "video"],
+        default="trajectory",
+        help="fit a trajectory (default) or the rendered video (the renderer runs each iteration)",
+    )
     p.add_argument("--source", default="builtin:duck", help="scene source (default builtin:duck)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_run)
