@@ -164,7 +164,9 @@ def test_example_config_with_two_objects_of_different_classes():
 
     from motionphysics.runconfig import load_run_config
 
-    cfg = load_run_config(Path(__file__).resolve().parents[2] / "examples" / "objects" / "axe_and_duck.yaml")
+    cfg = load_run_config(
+        Path(__file__).resolve().parents[2] / "examples" / "objects" / "axe_and_duck.yaml"
+    )
     assert [o.name for o in cfg.objects] == ["duck", "axe"]
     assert cfg.objects[1].initial_velocity == (0.0, 0.0, -1.0)
 
