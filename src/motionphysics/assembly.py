@@ -27,7 +27,6 @@ This module builds and runs components; it writes no files (the run directory is
 
 from __future__ import annotations
 
-import math
 import sys
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
@@ -95,19 +94,6 @@ class _NullHandle:
 # --------------------------------------------------------------------------------------
 # material
 # --------------------------------------------------------------------------------------
-def _range_centre(cls: str, name: str) -> float:
-    """Centre of a parameter's handbook range (geometric for log-scaled ones)."""
-    from motionphysics.materials.catalog import spec
-
-    ps = spec(cls, name)
-    if getattr(ps, "default", None) is not None:
-        return float(ps.default)
-    lo, hi = float(ps.low), float(ps.high)
-    if getattr(ps, "scale", "linear") == "log" and lo > 0:
-        return math.sqrt(lo * hi)
-    return 0.5 * (lo + hi)
-
-
 def estimate_material(prompt: str, image, backend: str, announce: bool = False) -> dict[str, Any]:
     """Run an init backend (CONTRACTS.md, "init").
 
@@ -158,6 +144,23 @@ def warn(text: str, observer: Observer | None = None) -> None:
     print(text if text.startswith("warning") else f"warning: {text}", file=sys.stderr)
     if observer is not None:
         observer.message("warning", text)
+
+
+def _provenance(est: dict[str, Any] | None, res: dict[str, Any], params_file=None) -> dict:
+    """Where a material's fields came from (``params.json`` provenance): the backend,
+    its raw answer and estimate, the substitutions and the per-field sources."""
+    backend = "params file" if params_file is not None else est["backend"] if est else "config"
+    return {
+        "backend": backend,
+        "params_file": params_file.get("origin") if params_file is not None else None,
+        "raw_answer": est.get("raw") if est else None,
+        "estimate": est.get("estimate") if est else None,
+        "clamps": res["clamps"],
+        "estimate_clamps": est.get("clamps", []) if est else [],
+        "overrides": res["overrides"],
+        "class_override": res["class_override"],
+        "sources": res["sources"],
+    }
 
 
 def material_complete(cfg: RunConfig) -> bool:
@@ -1156,20 +1159,12 @@ def assemble(
         resolution = resolve_simulation(material, cfg, sim_scene)
         for line in resolution.notes:
             warn(line, observer)
-        backend = "params file" if params_file is not None else est["backend"] if est else "config"
         provenance = {
-            "backend": backend,
-            "params_file": params_file.get("origin") if params_file is not None else None,
-            "raw_answer": est.get("raw") if est else None,
-            "estimate": est.get("estimate") if est else None,
+            **_provenance(est, res, params_file),
             "clamps": res["clamps"]
             + [c.to_dict() for c in mapped_substitutions(material, resolution.values)],
             "warnings": list(res.get("warnings", [])),
             "range_notes": list(res.get("range_notes", [])),
-            "estimate_clamps": est.get("clamps", []) if est else [],
-            "overrides": res["overrides"],
-            "class_override": res["class_override"],
-            "sources": res["sources"],
         }
         # The config records the material that is simulated (before any optimisation),
         # so re-running run.yaml reproduces the run.
@@ -1331,19 +1326,7 @@ def _assemble_objects(
             except UserInputError as err:
                 raise UserInputError(f"objects[{name}].{err}") from None
             materials.append(res["material"])
-            provs.append(
-                {
-                    "backend": est["backend"] if est else "config",
-                    "params_file": None,
-                    "raw_answer": est.get("raw") if est else None,
-                    "estimate": est.get("estimate") if est else None,
-                    "clamps": res["clamps"],
-                    "estimate_clamps": est.get("clamps", []) if est else [],
-                    "overrides": res["overrides"],
-                    "class_override": res["class_override"],
-                    "sources": res["sources"],
-                }
-            )
+            provs.append(_provenance(est, res))
         per, resolution = resolve_scene_simulation(cfg, sim_scene, materials, names)
         objects = tuple(
             ObjectPart(
