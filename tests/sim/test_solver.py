@@ -268,49 +268,63 @@ def test_bridge_backward_after_an_interleaved_run():
     assert float(E.grad) == pytest.approx(g_ref, rel=1e-5)
 
 
-def test_record_last_keeps_the_last_frame_tape_with_identical_gradients(monkeypatch):
-    """``Rollout.forward(record_last=True)`` records the last frame on a tape that the full
-    backward then starts from: same positions and bit-identical gradients (the recorded
-    step runs the same kernels on the same inputs), one frame fewer recomputed; any other
-    backward (window) or a later forward drops the kept tape."""
+def test_record_tapes_keeps_trailing_frames_with_identical_gradients(monkeypatch):
+    """``Rollout.forward(record_tapes=True)`` records the trailing frames whose tapes fit
+    ``tape_memory`` as it simulates them, and the full backward starts from those tapes:
+    same positions and bit-identical gradients (a recorded step runs the same kernels on
+    the same inputs) whether all, some or none of the frames are kept; only the frames not
+    kept are recomputed. A window backward or a later forward drops the kept tapes."""
     from motionphysics.sim.rollout import Rollout
 
-    cfg = _cfg(frames=4, initial_velocity=(0, 0, -2.0))
+    cfg = _cfg(frames=5, initial_velocity=(0, 0, -2.0))
     sim = build_simulation(_scene(n_side=4), cfg, ELASTIC, requires_grad=True)
     ro = sim.rollout
     rng = np.random.default_rng(3)
     p = sim.model.particle_count
-    adj = {f: {"x": rng.normal(size=(p, 3)), "F": rng.normal(size=(p, 3, 3))} for f in (2, 3)}
+    adj = {f: {"x": rng.normal(size=(p, 3)), "F": rng.normal(size=(p, 3, 3))} for f in (2, 4)}
     records = []
     real = Rollout._record
     monkeypatch.setattr(
         Rollout, "_record", lambda self, k0, k1, *a: records.append(k0) or real(self, k0, k1, *a)
     )
+    S = ro.substeps
 
-    def grads(record_last):
-        res = ro.forward(sim.state0, 4, record_last=record_last)
+    def grads(record_tapes, budget):
+        ro.tape_memory = budget
+        res = ro.forward(sim.state0, 5, record_tapes=record_tapes)
+        kept = ro.kept_frames
         records.clear()  # count what the backward records
         sim.model.zero_grad()
         adj0 = ro.backward(adj, grad_mode="full")
         g = {k: a.grad.numpy().copy() for k, a in sim.model.params.items()}
-        return res.xs, adj0.x.numpy().copy(), adj0.v.numpy().copy(), g, list(records)
+        return res.xs, adj0.x.numpy().copy(), adj0.v.numpy().copy(), g, kept, list(records)
 
-    xs0, ax0, av0, g0, rec0 = grads(False)
-    xs1, ax1, av1, g1, rec1 = grads(True)
-    S = ro.substeps
-    assert rec0 == [2 * S, S, 0]  # every frame recomputed in backward
-    assert rec1 == [S, 0]  # the last one (k0 = 2S) was recorded by forward
-    np.testing.assert_array_equal(xs1, xs0)
-    np.testing.assert_array_equal(ax1, ax0)
-    np.testing.assert_array_equal(av1, av0)
+    xs0, ax0, av0, g0, kept0, rec0 = grads(False, 1 << 34)
+    assert kept0 == [] and rec0 == [3 * S, 2 * S, S, 0]  # every frame recomputed
     assert np.any(g0["E"] != 0)
-    for k in g0:
-        np.testing.assert_array_equal(g1[k], g0[k], err_msg=k)
-    # a window backward ignores (and drops) the kept tape; so does a later forward
-    ro.forward(sim.state0, 4, record_last=True)
-    assert ro._tail is not None
+    per_frame = ro._span_bytes(S, 0)  # the estimate forward uses (needs its checkpoints)
+    # all four frames fit; two fit (the trailing two); none fit (a tape of one frame
+    # exceeds the budget: the backward also goes step-wise)
+    for budget, kept, rec in (
+        (1 << 34, [1, 2, 3, 4], []),
+        (int(2.2 * per_frame), [3, 4], [S, 0]),
+        (per_frame // 2, [], []),
+    ):
+        xs1, ax1, av1, g1, kept1, rec1 = grads(True, budget)
+        assert kept1 == kept, budget
+        if budget >= per_frame:
+            assert rec1 == rec
+        np.testing.assert_array_equal(xs1, xs0)
+        np.testing.assert_array_equal(ax1, ax0)
+        np.testing.assert_array_equal(av1, av0)
+        for k in g0:
+            np.testing.assert_array_equal(g1[k], g0[k], err_msg=k)
+    # a window backward ignores (and drops) the kept tapes; so does a later forward
+    ro.tape_memory = 1 << 34
+    ro.forward(sim.state0, 5, record_tapes=True)
+    assert ro.kept_frames == [1, 2, 3, 4]
     ro.backward(adj, grad_mode="window", window=2)
-    assert ro._tail is None
-    ro.forward(sim.state0, 4, record_last=True)
-    ro.forward(sim.state0, 4)
-    assert ro._tail is None
+    assert ro.kept_frames == []
+    ro.forward(sim.state0, 5, record_tapes=True)
+    ro.forward(sim.state0, 5)
+    assert ro.kept_frames == []

@@ -210,7 +210,7 @@ def _backward_timer(model, solver, start, substeps: int, frames: int, seed: int)
         wp.synchronize_device(device)
         t0 = time.perf_counter()
         # as the torch bridge does when a full backward follows
-        rollout.forward(start, n_frames + 1, keep_checkpoints=True, check=False, record_last=True)
+        rollout.forward(start, n_frames + 1, keep_checkpoints=True, check=False, record_tapes=True)
         rollout.backward({f: adjoints[f] for f in range(1, n_frames + 1)}, grad_mode="full")
         wp.synchronize_device(device)
         return time.perf_counter() - t0

@@ -42,7 +42,7 @@ class _SimulateFn(torch.autograd.Function):
             sim.state0,
             max(frames) + 1,
             keep_checkpoints=need_grad,
-            record_last=need_grad and grad_mode == "full",
+            record_tapes=need_grad and grad_mode == "full",
         )
         ctx.sim = sim
         ctx.names = names
@@ -72,7 +72,7 @@ class _SimulateFn(torch.autograd.Function):
                 max(ctx.frames) + 1,
                 keep_checkpoints=True,
                 check=False,
-                record_last=ctx.grad_mode == "full",
+                record_tapes=ctx.grad_mode == "full",
             )
         adjoints: dict[int, dict[str, Any]] = {}
         for i, f in enumerate(ctx.frames):

@@ -10,7 +10,10 @@ F at chosen frames:
 
 - ``full``: for each frame segment, last first, recompute the segment from its
   checkpoint under a ``wp.Tape`` (one state and one grid per substep) and propagate
-  the state adjoint through it. When a segment's tape would exceed ``tape_memory``,
+  the state adjoint through it. A forward run with ``record_tapes=True`` records the
+  trailing frames whose tapes fit ``tape_memory`` as it goes, and the backward starts
+  from those tapes instead of recomputing them (with the whole rollout kept, a full
+  backward costs the adjoint kernels only). When a segment's tape would exceed ``tape_memory``,
   its substep states are recomputed without a tape and each substep is re-recorded on
   its own tape in reverse (one grid in memory, one extra forward pass). Memory is
   independent of the number of frames either way.
@@ -70,9 +73,13 @@ class RolloutResult:
 class Rollout:
     """Runs frames of a :class:`Solver` and back-propagates losses on them."""
 
-    def __init__(self, solver: Solver, substeps: int, frame_dt: float, tape_memory: int = 5 << 28):
-        """``tape_memory`` [bytes]: largest tape recorded at once in backward (see
-        :meth:`_backward_span`); spans that need more use the step-wise recomputation."""
+    def __init__(
+        self, solver: Solver, substeps: int, frame_dt: float, tape_memory: int | None = None
+    ):
+        """``tape_memory`` [bytes]: the most memory tapes may hold at once (see
+        :meth:`_span_bytes`): the frames a forward keeps recorded together, and the largest
+        span a backward records at once (spans that need more use the step-wise
+        recomputation). Default :func:`default_tape_memory`."""
         if substeps < 1:
             raise ValueError("substeps must be >= 1")
         self.wp = init_warp()
@@ -81,16 +88,22 @@ class Rollout:
         self.substeps = int(substeps)
         self.frame_dt = float(frame_dt)
         self.dt = self.frame_dt / self.substeps
-        self.tape_memory = int(tape_memory)
+        self.tape_memory = int(default_tape_memory() if tape_memory is None else tape_memory)
         self.checkpoints: list[State] = []
         self._owner: Any = None  # the bridge call whose forward produced the checkpoints
         self._scratch: dict[str, Any] | None = None  # backward buffers, reused across calls
-        self._tail: tuple[int, int, Any] | None = None  # (k0, k1, tape) kept by forward()
+        # frame f -> (tape, states) recorded by forward(record_tapes=True) for the backward
+        self._kept: dict[int, tuple[Any, list[State]]] = {}
 
     def release_scratch(self) -> None:
         """Free the state / grid buffers that :meth:`backward` keeps for its next call."""
         self._scratch = None
-        self._tail = None
+        self._kept = {}
+
+    @property
+    def kept_frames(self) -> list[int]:
+        """Frames whose substeps the last forward kept on tapes for the next full backward."""
+        return sorted(self._kept)
 
     def _context(self) -> dict[str, Any]:
         """The backward's buffers (kept between calls: fresh ones cost page faults, ~5 ms
@@ -135,15 +148,16 @@ class Rollout:
         keep_velocities: bool = False,
         keep_checkpoints: bool = True,
         check: bool = True,
-        record_last: bool = False,
+        record_tapes: bool = False,
     ) -> RolloutResult:
         """Run ``num_frames - 1`` frames from ``state0`` (left unchanged); frame 0 = ``state0``.
 
-        ``record_last`` (with ``keep_checkpoints``): a ``grad_mode='full'`` backward follows,
-        so the last frame's substeps are recorded on a tape now, when that tape fits
-        ``tape_memory``, and that backward starts from it instead of recomputing them (the
-        other frames are recomputed from their checkpoints as usual). The positions are the
-        same either way (the recorded step runs the same kernels).
+        ``record_tapes`` (with ``keep_checkpoints``): a ``grad_mode='full'`` backward follows,
+        so the trailing frames whose tapes fit ``tape_memory`` together are recorded now,
+        as they are simulated, and that backward starts from their tapes instead of
+        recomputing them (the other frames are recomputed from their checkpoints as
+        usual). The positions are the same either way (a recorded step runs the same
+        kernels on the same inputs); :attr:`kept_frames` lists the recorded frames.
         """
         if num_frames < 1:
             raise ValueError("num_frames must be >= 1")
@@ -154,12 +168,18 @@ class Rollout:
         active = np.empty((num_frames, p), np.float32)
         walls = _WallWatch(self.model)
         self._owner = None
-        self._tail = None
+        self._kept = {}
         S = self.substeps
-        last = num_frames - 1
         a = state0.clone(requires_grad=False)
         b = State.zeros(p, self.model.device)
         self.checkpoints = [a.clone()] if keep_checkpoints else []
+        first_taped = num_frames  # no frame recorded
+        if record_tapes and keep_checkpoints and num_frames > 1:
+            # as many trailing frames as the estimate of the first lets fit (the estimate
+            # allows 1.5x growth of the particles' region; each frame is re-checked below)
+            per_frame = self._span_bytes(S, 0)
+            first_taped = max(1, num_frames - self.tape_memory // max(per_frame, 1))
+        used = 0
 
         def record(f: int, s: State) -> None:
             xs[f] = s.x.numpy()
@@ -171,17 +191,16 @@ class Rollout:
 
         record(0, a)
         for f in range(1, num_frames):
-            # the tape must fit as in _backward_span, which then takes it (same estimate)
-            if (
-                record_last
-                and keep_checkpoints
-                and f == last
-                and self._span_bytes(S, (f - 1) * S) <= self.tape_memory
-            ):
-                a.assign(self._record_tail(a, (f - 1) * S, f * S))
+            k0 = (f - 1) * S
+            need = self._span_bytes(S, k0) if f >= first_taped else 0
+            if f >= first_taped and used + need <= self.tape_memory:
+                tape, states = self._record(k0, k0 + S, a, self._slot(len(self._kept)))
+                self._kept[f] = (tape, states)
+                used += need
+                a.assign(states[S])
             else:
                 for s in range(S):
-                    self._substep(a, b, (f - 1) * S + s)
+                    self._substep(a, b, k0 + s)
                     a, b = b, a
             if check:
                 self.check(a, f)
@@ -217,7 +236,9 @@ class Rollout:
         a tape and each substep is re-recorded on its own tape (one grid in memory).
         """
         n = k1 - k0
-        if self._span_bytes(n, k0) <= self.tape_memory:
+        if (k0 % self.substeps == 0 and n == self.substeps and k1 // n in self._kept) or (
+            self._span_bytes(n, k0) <= self.tape_memory
+        ):
             self._backward_span_taped(k0, k1, adj, ctx)
         else:
             self._backward_span_stepwise(k0, k1, adj, ctx)
@@ -239,19 +260,28 @@ class Rollout:
                 k += 1
             out.assign(work)
 
-    def _record(self, k0: int, k1: int, start: State | None, ctx: dict[str, Any]):
+    def _slot(self, j: int) -> dict[str, list]:
+        """The ``j``-th set of tape buffers (states and grids) that forward records into;
+        kept between calls like the backward's buffers (fresh ones cost page faults)."""
+        slots = self._context().setdefault("slots", [])
+        while len(slots) <= j:
+            slots.append({})
+        return slots[j]
+
+    def _record(self, k0: int, k1: int, start: State | None, bufs: dict[str, Any]):
         """Record substeps k0 .. k1-1 on a new tape, one state and grid per substep (from
-        ``ctx``); the first state is ``start``, or the state at k0 from the checkpoints."""
+        ``bufs``, grown as needed); the first state is ``start``, or the state at k0 from
+        the checkpoints."""
         n = k1 - k0
         p = self.model.particle_count
-        states = ctx.setdefault("tstates", [])
-        grids = ctx.setdefault("tgrids", [])
+        states = bufs.setdefault("tstates", [])
+        grids = bufs.setdefault("tgrids", [])
         while len(states) < n + 1:
             states.append(State.zeros(p, self.model.device, requires_grad=True))
         while len(grids) < n:
             grids.append(self.solver.make_grid(requires_grad=True))
         if start is None:
-            self._start_state(k0, states[0], ctx)
+            self._start_state(k0, states[0], self._context())
         else:
             states[0].assign(start)
         for s in states[: n + 1]:
@@ -264,19 +294,13 @@ class Rollout:
                 self._substep(states[i], states[i + 1], k0 + i, grid=grids[i])
         return tape, states
 
-    def _record_tail(self, start: State, k0: int, k1: int) -> State:
-        """Record substeps k0 .. k1-1 from ``start`` for the next backward; returns the
-        state at k1 (a recorded buffer: copy it before the next recording)."""
-        tape, states = self._record(k0, k1, start, self._context())
-        self._tail = (k0, k1, tape)
-        return states[k1 - k0]
-
     def _backward_span_taped(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
         wp = self.wp
         n = k1 - k0
-        tail, self._tail = self._tail, None
-        if tail is not None and tail[:2] == (k0, k1):
-            tape, states = tail[2], ctx["tstates"]  # recorded by forward(record_last=True)
+        S = self.substeps
+        kept = self._kept.pop(k1 // S, None) if (k0 % S == 0 and n == S) else None
+        if kept is not None:
+            tape, states = kept  # recorded by forward(record_tapes=True)
         else:
             tape, states = self._record(k0, k1, None, ctx)
         for f in State.FIELDS:
@@ -354,7 +378,7 @@ class Rollout:
                 self._backward_span((f - 1) * S, f * S, adj, ctx)
             _add_state(adj0, adj)
             return adj0
-        self._tail = None  # a kept last-frame tape serves only the full backward
+        self._kept = {}  # kept tapes serve only the full backward
         for f in frames:
             adj = State.zeros(p, m.device)
             _add_adjoint(adj, adjoints[f])
@@ -364,6 +388,31 @@ class Rollout:
             if k0 == 0:
                 _add_state(adj0, adj)
         return adj0
+
+
+def default_tape_memory() -> int:
+    """Bytes tapes may hold at once: ``MOTIONPHYSICS_TAPE_MEMORY_GB`` when set, else a
+    quarter of the machine's memory, at most 4 GiB (enough to keep every frame of a
+    4,000-particle, 32^3, 24-frame fit recorded)."""
+    import os
+
+    env = os.environ.get("MOTIONPHYSICS_TAPE_MEMORY_GB")
+    if env:
+        try:
+            gb = float(env)
+        except ValueError:
+            gb = -1.0
+        if not gb > 0:
+            raise ValueError(
+                f"MOTIONPHYSICS_TAPE_MEMORY_GB: expected a positive number, got {env!r}"
+            )
+        return int(gb * (1 << 30))
+    total = 16 << 30
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        pass
+    return int(min(4 << 30, total // 4))
 
 
 class _WallWatch:
