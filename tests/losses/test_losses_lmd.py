@@ -76,7 +76,9 @@ def test_render_perturbation_option():
     assert build("lmd", tiny_prior("analytic"), perturbation=0.0).render_perturbation is None
 
 
-def _by_hand(prior, rgb, seed, guidance, form="absolute", weighting="uniform", kind="paper"):
+def _by_hand(
+    prior, rgb, seed, guidance, form="absolute", weighting="uniform", kind="paper", negative=""
+):
     """Eq. 4 from the same tensors, with M the identity (its initial state)."""
     rng = torch.Generator().manual_seed(seed)
     z0 = prior.encode(rgb)
@@ -84,7 +86,7 @@ def _by_hand(prior, rgb, seed, guidance, form="absolute", weighting="uniform", k
     eps = torch.randn(z0.shape, generator=rng)
     a = prior.alphas_cumprod[t]
     zt = a.sqrt() * z0 + (1 - a).sqrt() * eps
-    prior.set_prompt("a rubber ball bounces on the floor")
+    prior.set_prompt("a rubber ball bounces on the floor", negative)
     tx = prior.text
     out_u = prior.model_output(zt, t, tx.uncond)
     out_c = prior.model_output(zt, t, tx.cond)
@@ -215,3 +217,28 @@ def test_two_iterations_move_theta(kind):
     assert all(math.isfinite(g) and g != 0 for g in grads)
     assert theta != 0.4
     assert loss.steps == 2
+
+
+def test_negative_prompt_is_what_guidance_is_taken_against():
+    """``negative_prompt``: the guidance is ``out_neg + g (out_c − out_neg)``. With the
+    prompt itself as the negative the classifier-score contrast vanishes (the loss is
+    flat, sqrt(0 + β²)); with another description it does not, and the value equals a
+    by-hand evaluation with that description as the unconditional text. A loss keeps its
+    own pair even when another loss on the same prior set a different one."""
+    prior = tiny_prior("analytic")
+    rgb = moving_edge(torch.tensor(0.3), 4, 8)
+    prompt = "a rubber ball bounces on the floor"  # loss_helpers.build's prompt
+    same = build("lmd", prior, guidance=7.5, form="classifier_score", negative_prompt=prompt)
+    assert float(call(same, rgb)) == pytest.approx(1e-3)
+    neg = "a soft blob squashes flat"
+    other = build("lmd", prior, guidance=7.5, form="classifier_score", negative_prompt=neg)
+    plain = build("lmd", prior, guidance=7.5, form="classifier_score")
+    twin = copy.deepcopy(other)  # each call trains the extractor: compare fresh copies
+    v_other = float(call(other, rgb, seed=11))
+    v_plain = float(call(plain, rgb, seed=11))  # sets ("prompt", "") on the shared prior
+    twin.prior = prior
+    assert float(call(twin, rgb, seed=11)) == v_other  # ...and twin still uses its own
+    assert v_other != pytest.approx(v_plain)
+    assert v_other == pytest.approx(
+        _by_hand(prior, rgb, 11, 7.5, "classifier_score", "uniform", "paper", neg), rel=1e-5
+    )

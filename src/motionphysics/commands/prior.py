@@ -76,6 +76,8 @@ def _train(args) -> int:
         size="cuda" if args.device == "cuda" else "cpu",
         threads=args.threads,
         reload_data=args.reload_data,
+        balance=not args.no_balance,
+        contrast=args.contrast,
     )
 
     def log(text: str) -> None:
@@ -157,6 +159,19 @@ def register(subparsers) -> None:
         "--device", choices=("cpu", "cuda"), default="cpu", help="cuda trains a bigger model"
     )
     t.add_argument("--threads", type=_positive(int), default=None, help="torch CPU threads")
+    t.add_argument(
+        "--contrast",
+        type=float,
+        default=0.0,
+        metavar="W",
+        help="weight of the caption-contrast hinge (own-group prompt must denoise better than "
+        "another group's, at the same noise); 0 = plain denoising",
+    )
+    t.add_argument(
+        "--no-balance",
+        action="store_true",
+        help="draw clips uniformly instead of balanced over the motion groups",
+    )
     t.set_defaults(func=_train)
 
     e = sub.add_parser(

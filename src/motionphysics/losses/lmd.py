@@ -156,6 +156,12 @@ class LmdLoss(Loss):
         form: Literal["absolute", "classifier_score"] = "absolute"
         """``absolute``: target M_ema(x̂0) (the paper); ``classifier_score``: target
         M_ema(z0 + x̂0 − x̂0_uncond), the guided difference only."""
+        negative_prompt: str = ""
+        """The prompt the guidance is taken against: ``""`` (unconditional, the paper) or a
+        contrasting description (e.g. "a soft blob squashes flat" against "a stiff ball
+        bounces high"). With ``form: classifier_score`` a contrasting prompt makes the
+        loss the pairwise contrast ``x̂0(prompt) − x̂0(negative)``: the only form that
+        ordered the tiny prior's parameters the way the words say (model card)."""
         extractor_lr: float = Field(default=2e-5, ge=0.0)
         """AdamW learning rate of the online extractor (paper: 2e-5)."""
         ema_decay: float = Field(default=0.95, ge=0.0, le=1.0)
@@ -173,7 +179,8 @@ class LmdLoss(Loss):
 
     def __init__(self, prior, prompt: str, options: LmdLoss.Options | None = None, device="cpu"):
         self.opts = options or self.Options()
-        self.prior = need_prior(self.name, prior, prompt)
+        self.prompt = prompt
+        self.prior = need_prior(self.name, prior, prompt, self.opts.negative_prompt)
         check_t_range(self.name, self.prior, self.opts.t_min, self.opts.t_max)
         channels = int(self.prior.latent_shape()[2])
         self.device = torch.device(getattr(self.prior, "device", device))
@@ -210,6 +217,7 @@ class LmdLoss(Loss):
         z0 = encode(prior, pred.rgb, ctx.rng)  # [1, F_lat, C, h, w], grad to the renders
         t, noise = draw_t_noise(ctx.rng, tuple(z0.shape), o.t_min, o.t_max, z0.device)
         z_t = prior.add_noise(z0.detach(), noise, t)
+        prior.set_prompt(self.prompt, o.negative_prompt)  # a shared prior may have another
         gp = prior.predict(z_t, t, o.guidance)
         if o.form == "absolute":
             target_latent = gp.x0

@@ -19,13 +19,14 @@ from motionphysics.errors import UserInputError
 __all__ = ["draw_t_noise", "encode", "need_prior", "reference_clip", "step_weight"]
 
 
-def need_prior(loss: str, prior, prompt: str):
-    """The build context's prior, with the prompt set; a one-line error without one."""
+def need_prior(loss: str, prior, prompt: str, negative_prompt: str = ""):
+    """The build context's prior, with the prompt (and the prompt guidance is taken
+    against) set; a one-line error without one."""
     if prior is None:
         raise UserInputError(
             f"optimize.loss {loss!r} needs a video prior; set --prior cogvideox|modelscope|tiny"
         )
-    prior.set_prompt(prompt)
+    prior.set_prompt(prompt, negative_prompt)
     return prior
 
 

@@ -57,10 +57,17 @@ class SdsLoss(Loss):
         """w(t): ``sds`` 1 − ᾱ_t (DreamPhysics), ``uniform`` 1, ``snr`` √(ᾱ/(1−ᾱ))."""
         form: Literal["sds", "classifier_score"] = "sds"
         """``sds``: ε̂ − ε; ``classifier_score``: ε̂ − ε̂_uncond."""
+        negative_prompt: str = ""
+        """The prompt the guidance is taken against: ``""`` (unconditional, the paper) or a
+        contrasting description (e.g. "a soft blob squashes flat" against "a stiff ball
+        bounces high"). With ``form: classifier_score`` a contrasting prompt makes the
+        loss the pairwise contrast ``ε̂(prompt) − ε̂(negative)``: the only form that
+        ordered the tiny prior's parameters the way the words say (model card)."""
 
     def __init__(self, prior, prompt: str, options: SdsLoss.Options | None = None):
         self.opts = options or self.Options()
-        self.prior = need_prior(self.name, prior, prompt)
+        self.prompt = prompt
+        self.prior = need_prior(self.name, prior, prompt, self.opts.negative_prompt)
         check_t_range(self.name, self.prior, self.opts.t_min, self.opts.t_max)
         self._last: dict[str, float] = {}
 
@@ -75,6 +82,7 @@ class SdsLoss(Loss):
         z0 = encode(prior, pred.rgb, ctx.rng)  # [1, F_lat, C, h, w]
         t, noise = draw_t_noise(ctx.rng, tuple(z0.shape), o.t_min, o.t_max, z0.device)
         z_t = prior.add_noise(z0.detach(), noise, t)
+        prior.set_prompt(self.prompt, o.negative_prompt)  # a shared prior may have another
         gp = prior.predict(z_t, t, o.guidance)
         alpha_bar = prior.alphas_cumprod[t.long()].float().to(z0.device)
         w = step_weight(o.weighting, alpha_bar).reshape(())

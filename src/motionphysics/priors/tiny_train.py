@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from motionphysics.errors import UserInputError
 from motionphysics.priors.captions import GROUPS, caption_clip, group_prompt, motion_group
@@ -66,6 +67,19 @@ class TrainOptions:
     device: str = "cpu"
     size: str = "cpu"
     threads: int | None = None
+    balance: bool = True
+    """Draw each epoch's clips with probability inversely proportional to the size of
+    their motion group (clips with no group count as one more group), with replacement,
+    so that rare motions (oozes, keeps its shape) are seen as often as splashes."""
+    contrast: float = 0.0
+    """Weight of the caption-contrast term: for ``contrast_share`` of each batch, the
+    ε-MSE under a prompt of the clip's own motion group must be lower, by
+    ``contrast_margin`` (relative), than under a prompt of another group, at the same
+    noise and timestep (a hinge; the prompts are the training phrasings with the clip's
+    object noun). It trains what caption discrimination and the pairwise-contrast
+    distillation use: the text must change the loss. 0: plain denoising."""
+    contrast_share: float = 0.5
+    contrast_margin: float = 0.05
     reload_data: bool = False
     """Re-read DATA at each epoch boundary when shards were added (training while the
     generator still runs; a resumed run is then exact only if the shards did not change)."""
@@ -122,6 +136,54 @@ def prepare_dataset(root: str | Path, *, seed: int = 0, held_out: bool = False) 
         "specs": specs,
         "measures": measures,
     }
+
+
+def epoch_order(groups: list[str | None], seed: int, epoch: int, balance: bool) -> np.ndarray:
+    """The clip order of one epoch: a seeded permutation, or with ``balance`` a seeded
+    draw with replacement weighted by 1 / (size of the clip's motion group)."""
+    n = len(groups)
+    rng = np.random.default_rng([seed, epoch, n])
+    if not balance:
+        return rng.permutation(n)
+    keys = [g if g is not None else "" for g in groups]
+    sizes: dict[str, int] = {}
+    for k in keys:
+        sizes[k] = sizes.get(k, 0) + 1
+    w = np.array([1.0 / sizes[k] for k in keys])
+    return rng.choice(n, size=n, replace=True, p=w / w.sum())
+
+
+class _ContrastPrompts:
+    """Token embeddings of ``group_prompt(group, shape, k, held_out=False)`` for every
+    group, training shape and training phrasing (encoded once)."""
+
+    def __init__(self, shapes) -> None:
+        from motionphysics.priors.captions import TRAIN
+
+        self.shapes = sorted(set(shapes))
+        self.key: list[tuple[int, int]] = []  # (group, shape) -> rows
+        texts = []
+        self.rows: dict[tuple[int, int], list[int]] = {}
+        for gi, g in enumerate(GROUPS):
+            for si, sh in enumerate(self.shapes):
+                rows = []
+                for k in range(len(TRAIN[g])):
+                    rows.append(len(texts))
+                    texts.append(group_prompt(g, sh, k, held_out=False))
+                self.rows[(gi, si)] = rows
+        self.tokens = torch.cat(
+            [text_tokens(texts[i : i + 256]) for i in range(0, len(texts), 256)]
+        )
+
+    def draw(self, group: int, shape: str, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+        """(own-group prompt, other-group prompt) token embeddings for one clip."""
+        si = self.shapes.index(shape)
+        other = int(torch.randint(0, len(GROUPS) - 1, (1,), generator=gen))
+        other += other >= group
+        pos, neg = self.rows[(group, si)], self.rows[(other, si)]
+        i = pos[int(torch.randint(0, len(pos), (1,), generator=gen))]
+        j = neg[int(torch.randint(0, len(neg), (1,), generator=gen))]
+        return self.tokens[i], self.tokens[j]
 
 
 def _to_latent(frames_u8: np.ndarray) -> torch.Tensor:
@@ -228,7 +290,9 @@ def train(
     n_params = sum(p.numel() for p in net.parameters())
 
     def perm(epoch: int) -> np.ndarray:
-        return np.random.default_rng([o.seed, epoch, n]).permutation(n)
+        return epoch_order(ds["groups"], o.seed, epoch, o.balance)
+
+    contrast = _ContrastPrompts([sp["shape"] for sp in ds["specs"]]) if o.contrast > 0 else None
 
     order = perm(state["epoch"])
 
@@ -278,6 +342,7 @@ def train(
     t_start = time.perf_counter()
     base_elapsed = state["elapsed_s"]
     run_loss: list[float] = []
+    run_hinge: list[float] = []
     log(f"training {n_params} parameters on {n} clips ({T}x{H}x{W}), device {device}")
     try:
         while True:
@@ -291,6 +356,8 @@ def train(
                 if o.reload_data and _n_shards(data) != n_shards:
                     ds = prepare_dataset(data, seed=o.seed)
                     n, tokens, n_shards = ds["frames"].shape[0], ds["tokens"], _n_shards(data)
+                    if contrast is not None:
+                        contrast = _ContrastPrompts([sp["shape"] for sp in ds["specs"]])
                     log(f"data reloaded: {n} clips")
                 order = perm(state["epoch"])
             idx = order[state["offset"] : state["offset"] + o.batch]
@@ -311,8 +378,29 @@ def train(
             for gparam in opt.param_groups:
                 gparam["lr"] = _lr(state["step"], o)
             loss = ((net(zt, t, txt) - noise) ** 2).mean()
+            hinge = None
+            if contrast is not None:
+                rows = [
+                    r
+                    for r in range(b)
+                    if ds["groups"][idx[r]] is not None
+                    and torch.rand(1, generator=gen).item() < o.contrast_share
+                ]
+                if rows:
+                    pairs = [
+                        contrast.draw(
+                            GROUPS.index(ds["groups"][idx[r]]), ds["specs"][idx[r]]["shape"], gen
+                        )
+                        for r in rows
+                    ]
+                    both = torch.stack([p_ for pr in pairs for p_ in pr]).float().to(device)
+                    sel = torch.tensor(rows).repeat_interleave(2).to(device)
+                    err = ((net(zt[sel], t[sel], both) - noise[sel]) ** 2).mean(dim=(1, 2, 3, 4))
+                    pos, neg = err[0::2], err[1::2]
+                    hinge = torch.relu(pos - neg + o.contrast_margin * pos.detach()).mean()
+                    loss_total = loss + o.contrast * hinge
             opt.zero_grad(set_to_none=True)
-            loss.backward()
+            (loss_total if hinge is not None else loss).backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
             opt.step()
             d = min(o.ema_decay, (1 + state["step"]) / (10 + state["step"]))
@@ -324,6 +412,8 @@ def train(
             state["step"] += 1
             state["elapsed_s"] = base_elapsed + time.perf_counter() - t_start
             run_loss.append(float(loss.detach()))
+            if hinge is not None:
+                run_hinge.append(float(hinge.detach()))
             if state["step"] % 50 == 0:
                 rec = {
                     "step": state["step"],
@@ -331,6 +421,8 @@ def train(
                     "time_s": round(state["elapsed_s"], 1),
                     "epoch": state["epoch"],
                 }
+                if run_hinge:
+                    rec["contrast_hinge"] = float(np.mean(run_hinge[-50:]))
                 if o.eval_every and state["step"] % o.eval_every == 0:
                     rec["held_out_mse"] = held_out_mse()
                 state["log"].append(rec)
