@@ -62,6 +62,11 @@ def test_embedded_prior_refines_without_a_path(tmp_path):
     assert len(recs) == 1 and math.isfinite(recs[0]["loss"])
     p = json.loads((out / "params.json").read_text())
     assert p["optimise"]["prior"] == "tiny" and len(p["history"]) == 1
+    # 8 frames and the default boost 8 would show the 16-frame prior one frame at a time:
+    # the boost is capped to 1, every frame after the initial state is supervised
+    assert p["optimise"]["boost_requested"] == 8 and p["optimise"]["boost"] == 1
+    assert "boost" in p["optimise"]["boost_note"]
+    assert recs[0]["frames"] == list(range(1, 8))
 
 
 def test_bad_params_file(tmp_path, capsys):

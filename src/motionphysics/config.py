@@ -396,7 +396,9 @@ class OptimizeConfig(_Strict):
     iterations: int = Field(40, ge=0)
     """Optimisation iterations (0: none)."""
     boost: int = Field(8, ge=1)
-    """Frame boosting: number M of interleaved subsequences."""
+    """Frame boosting: number M of interleaved subsequences. With a video prior it is
+    capped so that each subsequence has at least min(the prior's frames, 16) frames
+    (the run's params.json records the M used)."""
     grad_mode: Literal["full", "window", "last_substep"] = "full"
     """Gradients through every substep (``full``, checkpointed), the last ``window``
     substeps before each supervised frame, or only the last substep."""

@@ -31,3 +31,22 @@ def test_schedule_shape():
     assert all(a >= b for a, b in zip(f[3:], f[4:], strict=False))
     lrs = learning_rates(["E", "nu"], 0.1, {"nu": 0.01}, 3, total, warm)
     assert lrs == pytest.approx({"E": 0.1, "nu": 0.01})
+
+
+def test_prior_boost_keeps_clips_long_enough_for_the_prior():
+    from motionphysics.optimize.boosting import prior_boost
+
+    # the paper: 150 frames, M = 8 -> 18 frames per subsequence, a 49-frame prior: kept
+    assert prior_boost(150, 8, 49) == 8
+    # a 16-frame run and the 16-frame tiny prior: one subsequence of the 15 frames after
+    # the initial state (M = 8 would give it clips of 1-2 frames)
+    assert prior_boost(16, 8, 16) == 1
+    assert prior_boost(40, 8, 16) == 2  # 2 x 19-20 frames; M = 3 would give 13
+    assert prior_boost(40, 8, 8) == 4  # a short prior: 4 x 9-10 frames
+    assert prior_boost(200, 8, 16) == 8  # never more than asked
+    for frames in range(2, 120):
+        for prior in (4, 16, 49):
+            m = prior_boost(frames, 8, prior)
+            assert 1 <= m <= 8
+            assert m == 1 or (frames - 1) // m >= min(prior, 16)
+            assert m == 8 or m == frames - 1 or (frames - 1) // (m + 1) < min(prior, 16)

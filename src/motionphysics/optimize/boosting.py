@@ -11,7 +11,12 @@ shrinks to their count so no subsequence is empty.
 
 from __future__ import annotations
 
-__all__ = ["effective_boost", "subsequences", "frames_for_iteration"]
+__all__ = ["effective_boost", "prior_boost", "subsequences", "frames_for_iteration"]
+
+MIN_CLIP_FRAMES = 16
+"""The fewest frames a subsequence shown to a video prior should have (or the prior's own
+frame count, when smaller): a clip of two or three frames stretched to the prior's length
+shows it no motion it was trained on."""
 
 
 def effective_boost(num_frames: int, boost: int) -> int:
@@ -33,3 +38,15 @@ def frames_for_iteration(iteration: int, num_frames: int, boost: int) -> tuple[i
     """Supervised frames of 0-based ``iteration``: subsequence ``iteration mod M``."""
     subs = subsequences(num_frames, boost)
     return subs[iteration % len(subs)]
+
+
+def prior_boost(num_frames: int, boost: int, prior_frames: int) -> int:
+    """M for a video prior that takes ``prior_frames`` frames: the largest M <= ``boost``
+    whose shortest subsequence has at least min(prior_frames, MIN_CLIP_FRAMES) frames, and
+    1 when even that is too many (the paper: 150 frames, M = 8, 18 frames each; a
+    16-frame run with M = 8 would give the prior clips of 1-2 frames)."""
+    m = effective_boost(num_frames, boost)
+    need = max(1, min(int(prior_frames), MIN_CLIP_FRAMES))
+    while m > 1 and (num_frames - 1) // m < need:
+        m -= 1
+    return m

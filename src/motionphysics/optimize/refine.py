@@ -245,6 +245,27 @@ def build_losses(cfg, ctx: LossBuildContext) -> WeightedLoss:
     return WeightedLoss(terms)
 
 
+def _boost_for_prior(cfg, prior):
+    """``cfg.optimize`` with the frame boosting capped for the prior (``prior_boost``), and
+    a one-line note when the cap changed it (None otherwise)."""
+    from motionphysics.optimize.boosting import effective_boost, prior_boost
+
+    frames = int(cfg.sim.frames)
+    asked = effective_boost(frames, int(cfg.optimize.boost))
+    n = getattr(prior, "num_frames", None)
+    if prior is None or n is None:
+        return cfg.optimize, None
+    m = prior_boost(frames, asked, int(n))
+    if m == asked:
+        return cfg.optimize, None
+    note = (
+        f"optimize.boost: {cfg.optimize.boost} -> {m}, so that each of the subsequences of "
+        f"the {frames} frames shown to the prior has at least {min(int(n), 16)} frames "
+        f"(the prior takes {n})"
+    )
+    return cfg.optimize.model_copy(update={"boost": m}), note
+
+
 def _fingerprint(cfg) -> str:
     from motionphysics.config import config_to_dict
 
@@ -345,9 +366,12 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     extras: dict[str, Any] = {"prompt": cfg.prompt, "prior": prior}
     if guidance is not None:
         extras["guidance"] = guidance
+    opt_cfg, boost_note = _boost_for_prior(cfg, prior)
+    if boost_note:
+        writer.observer.message("info", boost_note)
     result = optimize(
         problem,
-        cfg.optimize,
+        opt_cfg,
         writer.path,
         resume=resume,
         fingerprint=_fingerprint(cfg),
@@ -390,7 +414,9 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         ),
         "per_particle": list(cfg.optimize.per_particle),
         "grad_mode": cfg.optimize.grad_mode,
-        "boost": cfg.optimize.boost,
+        "boost": opt_cfg.boost,
+        "boost_requested": cfg.optimize.boost,
+        "boost_note": boost_note,
         "optimised": list(problem.theta_map.names),
         "substeps_changes": [list(c) for c in getattr(problem.simulator, "changes", [])],
     }
