@@ -1,0 +1,236 @@
+"""Does a prior move the parameters the way the words say? (issue 13's direction bar)
+
+For each scene and seed, two ``motionphysics run CONFIG --prior tiny --loss lmd`` runs
+start from the same material and differ only in the prompt: "stiff, bounces high" against
+"soft, wobbly, squashes" (class elastic, E optimised), and "thin runny water splashes"
+against "thick honey oozes slowly" (class newtonian, mu optimised). The result is read
+from each run's ``params.json``, as a user would read it. The bar: the stiff prompt's E at
+least 3x the soft prompt's, the thin prompt's mu at least 10x below the thick prompt's.
+
+``--invariance`` instead runs one prompt on one shape in three textures and two geometry
+variants, with ``lmd`` and with ``sds``, and reports the spread (standard deviation) of
+the optimised log10 E of each loss (the paper's Figure 3 claim: smaller with lmd).
+
+    python benchmarks/bench_prior_direction.py --iters 20 --seeds 3 --out /tmp/direction
+    python benchmarks/bench_prior_direction.py --invariance --iters 20 --out /tmp/inv
+
+The scenes are not in the tiny prior's training data: the real capture in
+``../shared/data/real/donut.ply`` (when present) and a capsule mesh written here.
+``--loss-options`` passes options to the loss (JSON), e.g.
+``'{"form": "classifier_score", "guidance": 5}'``; ``--contrast`` sets each run's
+``negative_prompt`` to the other prompt of its pair (the pairwise contrast).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "data" / "real" / "donut.ply"
+
+PAIRS = {
+    "elastic": {
+        "param": "E",
+        "start": {"class": "elastic", "density": 1100, "E": 3.0e8, "nu": 0.3},
+        "up": "A stiff {obj} is dropped, stays rigid and bounces high off the ground",
+        "down": "A soft, wobbly {obj} is dropped, squashes and wobbles like jelly",
+        "bar": 3.0,
+    },
+    "newtonian": {
+        "param": "mu",
+        "start": {"class": "newtonian", "density": 1000, "mu": 0.1, "kappa": 2.2e9},
+        "up": "Thick honey shaped like a {obj} oozes slowly over the ground",
+        "down": "Thin runny water shaped like a {obj} splashes and spreads thin",
+        "bar": 10.0,
+    },
+}
+
+
+def _mesh(dirpath: Path) -> Path:
+    import trimesh
+
+    path = dirpath / "capsule.obj"
+    if not path.exists():
+        trimesh.creation.capsule(height=1.0, radius=0.35, count=[24, 24]).export(path)
+    return path
+
+
+def _scenes(tmp: Path, which: list[str]) -> dict[str, dict]:
+    out = {}
+    if "real" in which:
+        if not REAL.is_file():
+            raise SystemExit(f"{REAL}: the real capture is not there (pass --scenes mesh)")
+        out["donut (real 3DGS)"] = {
+            "source": str(REAL),
+            "scale": 0.3,
+            "translate": [0, 0, 0.3],
+            "max_particles": 1500,
+        }
+    if "mesh" in which:
+        out["capsule (mesh)"] = {
+            "source": str(_mesh(tmp)),
+            "scale": 0.3,
+            "rotate": [["x", 70]],
+            "translate": [0, 0, 0.3],
+            "max_particles": 1500,
+        }
+    return out
+
+
+def _config(scene: dict, material: dict, prompt: str, loss: dict, iters: int, seed: int) -> dict:
+    return {
+        "scene": scene,
+        "prompt": prompt,
+        "material": dict(material),
+        "sim": {"grid": 24, "frames": 16, "frame_dt": 0.05, "substeps": "auto"},
+        "boundary_conditions": [
+            {
+                "type": "surface_collider",
+                "point": [0, 0, 0],
+                "normal": [0, 0, 1],
+                "mode": "frictional",
+                "friction": 0.5,
+            },
+            {"type": "bounding_box"},
+        ],
+        "camera": {"azimuth": 30, "elevation": 15, "width": 96, "height": 96},
+        "optimize": {
+            "prior": "tiny",
+            "losses": [loss],
+            "iterations": iters,
+            "seed": seed,
+            "params": [next(k for k in material if k not in ("class", "density", "nu", "kappa"))],
+        },
+    }
+
+
+def _run(cfg: dict, out: Path, prior_path: str | None) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    if prior_path:
+        cfg["optimize"]["prior_path"] = prior_path
+    path = out / "config.yaml"
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    exe = Path(sys.executable).with_name("motionphysics")
+    cmd = [str(exe), "run", str(path), "--out", str(out / "run"), "--force", "--quiet"]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if r.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr[-800:]}")
+    p = json.loads((out / "run" / "params.json").read_text())
+    losses = [h.get("loss") for h in p.get("history", [])]
+    return {"params": p["params"], "seconds": time.perf_counter() - t0, "losses": losses}
+
+
+def direction(args, tmp: Path) -> dict:
+    scenes = _scenes(tmp, args.scenes)
+    jobs = []
+    for sname, scene in scenes.items():
+        for cls in args.classes:
+            pair = PAIRS[cls]
+            obj = "ring" if "donut" in sname else "capsule"
+            for seed in range(args.seeds):
+                for side in ("up", "down"):
+                    other = "down" if side == "up" else "up"
+                    loss = {"type": args.loss, **args.loss_options}
+                    if args.contrast:
+                        loss["negative_prompt"] = pair[other].format(obj=obj)
+                    cfg = _config(
+                        scene, pair["start"], pair[side].format(obj=obj), loss, args.iters, seed
+                    )
+                    key = (sname, cls, seed, side)
+                    jobs.append((key, cfg, args.out / f"{len(jobs):03d}"))
+    with ThreadPoolExecutor(args.workers) as pool:
+        futs = {key: pool.submit(_run, cfg, out, args.prior_path) for key, cfg, out in jobs}
+        results = {key: f.result() for key, f in futs.items()}
+    rows = []
+    for sname in scenes:
+        for cls in args.classes:
+            pair = PAIRS[cls]
+            name = pair["param"]
+            for seed in range(args.seeds):
+                up = results[(sname, cls, seed, "up")]
+                down = results[(sname, cls, seed, "down")]
+                ratio = up["params"][name] / down["params"][name]
+                rows.append(
+                    {
+                        "scene": sname,
+                        "class": cls,
+                        "param": name,
+                        "seed": seed,
+                        "start": pair["start"][name],
+                        "up_end": up["params"][name],
+                        "down_end": down["params"][name],
+                        "ratio": ratio,
+                        "bar": pair["bar"],
+                        "pass": ratio >= pair["bar"],
+                        "up_losses": up["losses"],
+                        "down_losses": down["losses"],
+                        "seconds": up["seconds"] + down["seconds"],
+                    }
+                )
+    return {"rows": rows}
+
+
+def invariance(args, tmp: Path) -> dict:
+    variants = ["bird", "bird_textured", "bird_plain", "bird_red", "bird_simple"]
+    pair = PAIRS["elastic"]
+    jobs = []
+    for loss_type in ("lmd", "sds"):
+        for v in variants:
+            scene = {
+                "source": f"builtin:{v}",
+                "scale": 0.3,
+                "translate": [0, 0, 0.3],
+                "max_particles": 1500,
+            }
+            loss = {"type": loss_type, **args.loss_options}
+            cfg = _config(scene, pair["start"], pair["up"].format(obj="bird"), loss, args.iters, 0)
+            jobs.append(((loss_type, v), cfg, args.out / f"inv-{loss_type}-{v}"))
+    with ThreadPoolExecutor(args.workers) as pool:
+        futs = {key: pool.submit(_run, cfg, out, args.prior_path) for key, cfg, out in jobs}
+        results = {key: f.result() for key, f in futs.items()}
+    table = {}
+    for loss_type in ("lmd", "sds"):
+        logs = [math.log10(results[(loss_type, v)]["params"]["E"]) for v in variants]
+        mean = sum(logs) / len(logs)
+        sd = math.sqrt(sum((x - mean) ** 2 for x in logs) / (len(logs) - 1))
+        table[loss_type] = {"log10_E": dict(zip(variants, logs, strict=True)), "std": sd}
+    return {"invariance": table, "lmd_smaller": table["lmd"]["std"] < table["sds"]["std"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--iters", type=int, default=20)
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--scenes", nargs="+", default=["real", "mesh"], choices=["real", "mesh"])
+    ap.add_argument("--classes", nargs="+", default=["elastic", "newtonian"], choices=list(PAIRS))
+    ap.add_argument("--loss", default="lmd", choices=["lmd", "sds"])
+    ap.add_argument("--loss-options", type=json.loads, default={})
+    ap.add_argument("--contrast", action="store_true", help="negative_prompt = the other prompt")
+    ap.add_argument("--prior-path", default=None, help="a tiny-prior checkpoint (default: shipped)")
+    ap.add_argument("--invariance", action="store_true")
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        args.out = args.out or tmp / "runs"
+        res = invariance(args, tmp) if args.invariance else direction(args, tmp)
+    res["command"] = " ".join(sys.argv)
+    print(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    main()
