@@ -148,61 +148,46 @@ def foreign_clip_tokenizer():
 def write_foreign_modelscope(directory: Path, seed: int = 5) -> Path:
     """ModelScope with a 3-level VAE (4x), 6 latent channels, CLIP width 12 and 24
     positions, other DDIM options (linear betas, steps_offset 1)."""
-    import torch
-    from diffusers import AutoencoderKL, DDIMScheduler, TextToVideoSDPipeline, UNet3DConditionModel
-    from transformers import CLIPTextConfig, CLIPTextModel
+    from tests.priors.tiny_pipelines import write_modelscope_pipeline
 
-    tokenizer = foreign_clip_tokenizer()
-    torch.manual_seed(seed)
-    unet = UNet3DConditionModel(
-        block_out_channels=(8, 16),
-        layers_per_block=1,
-        sample_size=4,
-        in_channels=6,
-        out_channels=6,
-        down_block_types=("CrossAttnDownBlock3D", "DownBlock3D"),
-        up_block_types=("UpBlock3D", "CrossAttnUpBlock3D"),
-        cross_attention_dim=12,
-        attention_head_dim=4,
-        norm_num_groups=4,
+    return write_modelscope_pipeline(
+        directory,
+        foreign_clip_tokenizer(),
+        seed=seed,
+        reseed=False,
+        unet={
+            "block_out_channels": (8, 16),
+            "sample_size": 4,
+            "in_channels": 6,
+            "out_channels": 6,
+            "cross_attention_dim": 12,
+            "norm_num_groups": 4,
+        },
+        scheduler={
+            "beta_start": 0.0001,
+            "beta_end": 0.02,
+            "beta_schedule": "linear",
+            "clip_sample": False,
+            "set_alpha_to_one": True,
+            "steps_offset": 1,
+        },
+        vae={
+            "blocks": 3,
+            "block_out_channels": (4, 8, 8),
+            "latent_channels": 6,
+            "sample_size": 16,
+            "norm_num_groups": 2,
+            "scaling_factor": 0.5,
+        },
+        text={
+            "hidden_size": 12,
+            "intermediate_size": 24,
+            "num_attention_heads": 3,
+            "num_hidden_layers": 1,
+            "max_position_embeddings": 24,
+            "projection_dim": 12,
+        },
     )
-    scheduler = DDIMScheduler(
-        beta_start=0.0001,
-        beta_end=0.02,
-        beta_schedule="linear",
-        clip_sample=False,
-        set_alpha_to_one=True,
-        steps_offset=1,
-    )
-    vae = AutoencoderKL(
-        block_out_channels=(4, 8, 8),
-        in_channels=3,
-        out_channels=3,
-        down_block_types=["DownEncoderBlock2D"] * 3,
-        up_block_types=["UpDecoderBlock2D"] * 3,
-        latent_channels=6,
-        sample_size=16,
-        norm_num_groups=2,
-        scaling_factor=0.5,
-    )
-    text_encoder = CLIPTextModel(
-        CLIPTextConfig(
-            bos_token_id=tokenizer.bos_token_id,
-            eos_token_id=tokenizer.eos_token_id,
-            pad_token_id=tokenizer.pad_token_id,
-            hidden_size=12,
-            intermediate_size=24,
-            num_attention_heads=3,
-            num_hidden_layers=1,
-            vocab_size=len(tokenizer),
-            max_position_embeddings=24,
-            projection_dim=12,
-        )
-    )
-    TextToVideoSDPipeline(
-        vae=vae, text_encoder=text_encoder, tokenizer=tokenizer, unet=unet, scheduler=scheduler
-    ).save_pretrained(directory)
-    return directory
 
 
 @pytest.fixture(scope="module")

@@ -177,70 +177,102 @@ def write_tiny_cogvideox(
     return directory
 
 
-def write_tiny_modelscope(directory, *, seed: int = 0) -> Path:
-    """Write a tiny ModelScope T2V pipeline (CLIP + BPE tokenizer, 2-D VAE, UNet3D, DDIM).
-
-    Runs at 16x16 px (VAE 2x, UNet 2x), 4 frames -> latents [1, 4, 4, 8, 8]."""
+def write_modelscope_pipeline(
+    directory, tokenizer, *, seed: int, unet: dict, vae: dict, text: dict,
+    scheduler: dict | None = None, reseed: bool = True,
+) -> Path:  # fmt: skip
+    """Write a ModelScope T2V pipeline (CLIP text encoder, 2-D VAE, UNet3D, DDIM) in
+    diffusers' ``save_pretrained`` layout, from the keyword arguments of each component
+    over the layout every builder here shares (two-block UNet with cross-attention in
+    the outer blocks, ``DownEncoderBlock2D`` VAE blocks, GELU CLIP). The torch seed is set
+    before the UNet and, with ``reseed``, again before the VAE and the text encoder."""
     import torch
     from diffusers import AutoencoderKL, DDIMScheduler, TextToVideoSDPipeline, UNet3DConditionModel
     from transformers import CLIPTextConfig, CLIPTextModel
 
     directory = Path(directory)
-    tokenizer = tiny_clip_tokenizer()
     torch.manual_seed(seed)
     unet = UNet3DConditionModel(
-        block_out_channels=(4, 8),
         layers_per_block=1,
-        sample_size=8,
-        in_channels=4,
-        out_channels=4,
         down_block_types=("CrossAttnDownBlock3D", "DownBlock3D"),
         up_block_types=("UpBlock3D", "CrossAttnUpBlock3D"),
-        cross_attention_dim=8,
         attention_head_dim=4,
-        norm_num_groups=2,
+        **unet,
     )
-    scheduler = DDIMScheduler(
-        beta_start=0.00085,
-        beta_end=0.012,
-        beta_schedule="scaled_linear",
-        clip_sample=False,
-        set_alpha_to_one=False,
+    sched = DDIMScheduler(
+        **(
+            scheduler
+            or {
+                "beta_start": 0.00085,
+                "beta_end": 0.012,
+                "beta_schedule": "scaled_linear",
+                "clip_sample": False,
+                "set_alpha_to_one": False,
+            }
+        )
     )
-    torch.manual_seed(seed)
-    vae = AutoencoderKL(
-        block_out_channels=(8, 8),
+    if reseed:
+        torch.manual_seed(seed)
+    blocks = vae.pop("blocks")
+    vae_model = AutoencoderKL(
         in_channels=3,
         out_channels=3,
-        down_block_types=["DownEncoderBlock2D", "DownEncoderBlock2D"],
-        up_block_types=["UpDecoderBlock2D", "UpDecoderBlock2D"],
-        latent_channels=4,
-        sample_size=16,
-        norm_num_groups=2,
-        scaling_factor=0.18215,
+        down_block_types=["DownEncoderBlock2D"] * blocks,
+        up_block_types=["UpDecoderBlock2D"] * blocks,
+        **vae,
     )
-    torch.manual_seed(seed)
+    if reseed:
+        torch.manual_seed(seed)
     text_encoder = CLIPTextModel(
         CLIPTextConfig(
             bos_token_id=tokenizer.bos_token_id,
             eos_token_id=tokenizer.eos_token_id,
             pad_token_id=tokenizer.pad_token_id,
-            hidden_size=8,
-            intermediate_size=16,
-            layer_norm_eps=1e-05,
-            num_attention_heads=2,
-            num_hidden_layers=2,
             vocab_size=len(tokenizer),
-            max_position_embeddings=16,
-            hidden_act="gelu",
-            projection_dim=8,
+            **text,
         )
     )
-    pipe = TextToVideoSDPipeline(
-        vae=vae, text_encoder=text_encoder, tokenizer=tokenizer, unet=unet, scheduler=scheduler
-    )
-    pipe.save_pretrained(directory)
+    TextToVideoSDPipeline(
+        vae=vae_model, text_encoder=text_encoder, tokenizer=tokenizer, unet=unet, scheduler=sched
+    ).save_pretrained(directory)
     return directory
+
+
+def write_tiny_modelscope(directory, *, seed: int = 0) -> Path:
+    """Write a tiny ModelScope T2V pipeline (CLIP + BPE tokenizer, 2-D VAE, UNet3D, DDIM).
+
+    Runs at 16x16 px (VAE 2x, UNet 2x), 4 frames -> latents [1, 4, 4, 8, 8]."""
+    return write_modelscope_pipeline(
+        directory,
+        tiny_clip_tokenizer(),
+        seed=seed,
+        unet={
+            "block_out_channels": (4, 8),
+            "sample_size": 8,
+            "in_channels": 4,
+            "out_channels": 4,
+            "cross_attention_dim": 8,
+            "norm_num_groups": 2,
+        },
+        vae={
+            "blocks": 2,
+            "block_out_channels": (8, 8),
+            "latent_channels": 4,
+            "sample_size": 16,
+            "norm_num_groups": 2,
+            "scaling_factor": 0.18215,
+        },
+        text={
+            "hidden_size": 8,
+            "intermediate_size": 16,
+            "layer_norm_eps": 1e-05,
+            "num_attention_heads": 2,
+            "num_hidden_layers": 2,
+            "max_position_embeddings": 16,
+            "hidden_act": "gelu",
+            "projection_dim": 8,
+        },
+    )
 
 
 _CACHE: dict[str, Path] = {}
@@ -292,60 +324,32 @@ def write_diffusers_dummy_modelscope(directory, *, seed: int = 0) -> Path:
     """ModelScope with exactly diffusers' own dummy components (the removed
     tests/pipelines/text_to_video_synthesis test: a one-block VAE of spatial scale 1,
     sample_size 32, CLIP width 4), a different layout from :func:`write_tiny_modelscope`."""
-    import torch
-    from diffusers import AutoencoderKL, DDIMScheduler, TextToVideoSDPipeline, UNet3DConditionModel
-    from transformers import CLIPTextConfig, CLIPTextModel
-
-    directory = Path(directory)
-    tokenizer = tiny_clip_tokenizer(model_max_length=77)
-    torch.manual_seed(seed)
-    unet = UNet3DConditionModel(
-        block_out_channels=(4, 8),
-        layers_per_block=1,
-        sample_size=32,
-        in_channels=4,
-        out_channels=4,
-        down_block_types=("CrossAttnDownBlock3D", "DownBlock3D"),
-        up_block_types=("UpBlock3D", "CrossAttnUpBlock3D"),
-        cross_attention_dim=4,
-        attention_head_dim=4,
-        norm_num_groups=2,
+    return write_modelscope_pipeline(
+        directory,
+        tiny_clip_tokenizer(model_max_length=77),
+        seed=seed,
+        unet={
+            "block_out_channels": (4, 8),
+            "sample_size": 32,
+            "in_channels": 4,
+            "out_channels": 4,
+            "cross_attention_dim": 4,
+            "norm_num_groups": 2,
+        },
+        vae={
+            "blocks": 1,
+            "block_out_channels": (8,),
+            "latent_channels": 4,
+            "sample_size": 32,
+            "norm_num_groups": 2,
+        },
+        text={
+            "hidden_size": 4,
+            "intermediate_size": 16,
+            "layer_norm_eps": 1e-05,
+            "num_attention_heads": 2,
+            "num_hidden_layers": 2,
+            "hidden_act": "gelu",
+            "projection_dim": 32,
+        },
     )
-    scheduler = DDIMScheduler(
-        beta_start=0.00085,
-        beta_end=0.012,
-        beta_schedule="scaled_linear",
-        clip_sample=False,
-        set_alpha_to_one=False,
-    )
-    torch.manual_seed(seed)
-    vae = AutoencoderKL(
-        block_out_channels=(8,),
-        in_channels=3,
-        out_channels=3,
-        down_block_types=["DownEncoderBlock2D"],
-        up_block_types=["UpDecoderBlock2D"],
-        latent_channels=4,
-        sample_size=32,
-        norm_num_groups=2,
-    )
-    torch.manual_seed(seed)
-    text_encoder = CLIPTextModel(
-        CLIPTextConfig(
-            bos_token_id=tokenizer.bos_token_id,
-            eos_token_id=tokenizer.eos_token_id,
-            hidden_size=4,
-            intermediate_size=16,
-            layer_norm_eps=1e-05,
-            num_attention_heads=2,
-            num_hidden_layers=2,
-            pad_token_id=tokenizer.pad_token_id,
-            vocab_size=len(tokenizer),
-            hidden_act="gelu",
-            projection_dim=32,
-        )
-    )
-    TextToVideoSDPipeline(
-        vae=vae, text_encoder=text_encoder, tokenizer=tokenizer, unet=unet, scheduler=scheduler
-    ).save_pretrained(directory)
-    return directory
