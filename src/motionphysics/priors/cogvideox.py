@@ -32,11 +32,9 @@ from motionphysics.priors.base import resample_frames
 from motionphysics.priors.diffusers_common import (
     DiffusersPrior,
     DiffusersPriorOptions,
-    configure_vae,
+    build_prior,
+    check_text_width,
     default_side,
-    load_model,
-    load_scheduler,
-    load_tokenizer,
     parse_options,
     place,
 )
@@ -148,40 +146,13 @@ class CogVideoXPrior(DiffusersPrior):
         if "scaling_factor" not in vae_cfg:
             raise UserInputError(f"{md.sub('vae') / 'config.json'}: no scaling_factor; {md.hint()}")
         d_model, text_dim = te_cfg.get("d_model"), tf_cfg.get("text_embed_dim", 4096)
-        if d_model is not None and int(d_model) != int(text_dim):
-            raise UserInputError(
-                f"{md.sub('text_encoder') / 'config.json'}: d_model {d_model} does not match the "
-                f"transformer's text_embed_dim {text_dim}"
-            )
+        check_text_width(md, "d_model", d_model, "transformer's text_embed_dim", text_dim)
         # Trained precisions: 5b-style (RoPE) in bf16 (fp16 gives NaNs), 2b in fp16.
         rope = bool(tf_cfg.get("use_rotary_positional_embeddings", False))
         dt = resolve_dtype(
             dev, opts.dtype if dtype is None else dtype, torch.bfloat16 if rope else torch.float16
         )
-        scheduler = load_scheduler(md)
-        vae = load_model(md, "vae", "diffusers", dt)
-        transformer = load_model(md, "transformer", "diffusers", dt)
-        configure_vae(vae, opts, dev)
-        prior = cls(
-            vae=vae,
-            transformer=transformer,
-            scheduler=scheduler,
-            text_encoder=None,
-            tokenizer=None,
-            device=dev,
-            dtype=dt,
-            num_frames=opts.num_frames,
-            height=opts.height,
-            width=opts.width,
-            model_dir=md,
-            posterior=opts.posterior,
-            release_text_encoder=opts.release_text_encoder,
-            negative_prompt=opts.negative_prompt,
-        )
-        # Load the text side now so a broken tokenizer / encoder fails at startup.
-        prior.text_encoder = load_model(md, "text_encoder", "transformers", dt)
-        prior.tokenizer = load_tokenizer(md)
-        return prior
+        return build_prior(cls, md, opts, dev, dt, "transformer", text_encoder=None, tokenizer=None)
 
     # --- the interface ----------------------------------------------------------------
     @property

@@ -267,3 +267,41 @@ def configure_vae(vae, opts, device: torch.device) -> None:
                 )
         else:
             vae.enable_tiling()
+
+
+def check_text_width(md: ModelDir, key: str, value, other: str, other_value) -> None:
+    """The text encoder's output width must be what the denoiser cross-attends to."""
+    if value is not None and other_value is not None and int(value) != int(other_value):
+        raise UserInputError(
+            f"{md.sub('text_encoder') / 'config.json'}: {key} {value} does not match the "
+            f"{other} {other_value}"
+        )
+
+
+def build_prior(cls, md: ModelDir, opts, device: torch.device, dtype: torch.dtype, denoiser: str,
+                **extra):  # fmt: skip
+    """Load the scheduler, the VAE (configured per ``opts``) and the ``denoiser`` component
+    of ``md``, construct ``cls`` with them, then load its text encoder and tokenizer (so a
+    broken tokenizer or encoder fails at startup). ``extra``: more constructor arguments."""
+    scheduler = load_scheduler(md)
+    vae = load_model(md, "vae", "diffusers", dtype)
+    net = load_model(md, denoiser, "diffusers", dtype)
+    configure_vae(vae, opts, device)
+    prior = cls(
+        vae=vae,
+        scheduler=scheduler,
+        device=device,
+        dtype=dtype,
+        num_frames=opts.num_frames,
+        height=opts.height,
+        width=opts.width,
+        model_dir=md,
+        posterior=opts.posterior,
+        release_text_encoder=opts.release_text_encoder,
+        negative_prompt=opts.negative_prompt,
+        **{denoiser: net},
+        **extra,
+    )
+    prior.text_encoder = load_model(md, "text_encoder", "transformers", dtype)
+    prior.tokenizer = load_tokenizer(md)
+    return prior

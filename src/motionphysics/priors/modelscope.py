@@ -25,11 +25,9 @@ from motionphysics.priors.base import resample_frames
 from motionphysics.priors.diffusers_common import (
     DiffusersPrior,
     DiffusersPriorOptions,
-    configure_vae,
+    build_prior,
+    check_text_width,
     default_side,
-    load_model,
-    load_scheduler,
-    load_tokenizer,
     parse_options,
     place,
 )
@@ -114,33 +112,9 @@ class ModelScopePrior(DiffusersPrior):
         if "scaling_factor" not in vae_cfg:
             raise UserInputError(f"{md.sub('vae') / 'config.json'}: no scaling_factor; {md.hint()}")
         hidden, cross = te_cfg.get("hidden_size"), unet_cfg.get("cross_attention_dim")
-        if hidden is not None and cross is not None and int(hidden) != int(cross):
-            raise UserInputError(
-                f"{md.sub('text_encoder') / 'config.json'}: hidden_size {hidden} does not match the "
-                f"unet's cross_attention_dim {cross}"
-            )
+        check_text_width(md, "hidden_size", hidden, "unet's cross_attention_dim", cross)
         dt = resolve_dtype(dev, opts.dtype if dtype is None else dtype, torch.float16)
-        scheduler = load_scheduler(md)
-        vae = load_model(md, "vae", "diffusers", dt)
-        unet = load_model(md, "unet", "diffusers", dt)
-        configure_vae(vae, opts, dev)
-        prior = cls(
-            vae=vae,
-            unet=unet,
-            scheduler=scheduler,
-            device=dev,
-            dtype=dt,
-            num_frames=opts.num_frames,
-            height=opts.height,
-            width=opts.width,
-            model_dir=md,
-            posterior=opts.posterior,
-            release_text_encoder=opts.release_text_encoder,
-            negative_prompt=opts.negative_prompt,
-        )
-        prior.text_encoder = load_model(md, "text_encoder", "transformers", dt)
-        prior.tokenizer = load_tokenizer(md)
-        return prior
+        return build_prior(cls, md, opts, dev, dt, "unet")
 
     def latent_shape(self) -> tuple[int, ...]:
         s = self.spatial_scale
