@@ -242,3 +242,25 @@ def test_negative_prompt_is_what_guidance_is_taken_against():
     assert v_other == pytest.approx(
         _by_hand(prior, rgb, 11, 7.5, "classifier_score", "uniform", "paper", neg), rel=1e-5
     )
+
+
+def test_samples_average_the_losses_of_successive_draws():
+    """``samples: K`` draws K (t, ε) pairs from the iteration's generator and averages
+    their losses: the same as K one-draw losses (fresh extractors) fed that generator in
+    turn. K = 1 is the paper's loss (the value tests above)."""
+    from motionphysics.losses import LossContext, Prediction
+
+    prior = tiny_prior("analytic")
+    rgb = moving_edge(torch.tensor(0.3), 4, 8)
+    pred = Prediction(frame_indices=tuple(range(rgb.shape[0])), rgb=rgb)
+
+    def ctx(g):
+        return LossContext(iteration=0, num_frames=24, rng=g)
+
+    three = build("lmd", prior, guidance=7.5, samples=3)
+    v3 = float(three(pred, ctx(torch.Generator().manual_seed(4))))
+    g = torch.Generator().manual_seed(4)
+    singles = [float(build("lmd", prior, guidance=7.5)(pred, ctx(g))) for _ in range(3)]
+    assert len(set(singles)) == 3  # three different draws
+    assert v3 == pytest.approx(sum(singles) / 3, rel=1e-6)
+    assert three.components()["samples"] == 3.0

@@ -156,6 +156,10 @@ class LmdLoss(Loss):
         form: Literal["absolute", "classifier_score"] = "absolute"
         """``absolute``: target M_ema(x̂0) (the paper); ``classifier_score``: target
         M_ema(z0 + x̂0 − x̂0_uncond), the guided difference only."""
+        samples: int = Field(default=1, ge=1)
+        """Diffusion draws (t, ε) per iteration, their losses averaged (1: the paper). The
+        prior's predictions take no gradient, so K draws cost K prior calls and one
+        backward; they cut the variance that the drawn t and ε add to the gradient."""
         negative_prompt: str = ""
         """The prompt the guidance is taken against: ``""`` (unconditional, the paper) or a
         contrasting description (e.g. "a soft blob squashes flat" against "a stiff ball
@@ -215,32 +219,40 @@ class LmdLoss(Loss):
             raise ValueError("lmd needs rendered frames (Prediction.rgb)")
         prior, o = self.prior, self.opts
         z0 = encode(prior, pred.rgb, ctx.rng)  # [1, F_lat, C, h, w], grad to the renders
-        t, noise = draw_t_noise(ctx.rng, tuple(z0.shape), o.t_min, o.t_max, z0.device)
-        z_t = prior.add_noise(z0.detach(), noise, t)
         prior.set_prompt(self.prompt, o.negative_prompt)  # a shared prior may have another
-        gp = prior.predict(z_t, t, o.guidance)
-        if o.form == "absolute":
-            target_latent = gp.x0
-        else:
-            target_latent = z0.detach() + (gp.x0 - gp.x0_uncond)
         pdt = next(self.extractor.parameters()).dtype  # float32 (float64 in gradient checks)
+        draws = []  # (t, w, y_target) per diffusion draw
+        first = None  # the first draw's prediction (for the components)
+        for _ in range(o.samples):
+            t, noise = draw_t_noise(ctx.rng, tuple(z0.shape), o.t_min, o.t_max, z0.device)
+            z_t = prior.add_noise(z0.detach(), noise, t)
+            gp = prior.predict(z_t, t, o.guidance)
+            if o.form == "absolute":
+                target_latent = gp.x0
+            else:
+                target_latent = z0.detach() + (gp.x0 - gp.x0_uncond)
+            with torch.no_grad():
+                y_target = self.ema(target_latent.to(pdt))
+            alpha_bar = prior.alphas_cumprod[t.long()].float().to(z0.device)
+            draws.append((t, step_weight(o.weighting, alpha_bar).reshape(()), y_target))
+            first = gp if first is None else first
         z0 = z0.to(pdt)
-        with torch.no_grad():
-            y_target = self.ema(target_latent.to(pdt))
-        alpha_bar = prior.alphas_cumprod[t.long()].float().to(z0.device)
-        w = step_weight(o.weighting, alpha_bar).reshape(())
+        (t, w, _), gp = draws[0], first
+
+        def total(y_pred: Tensor) -> Tensor:
+            return sum(self._value(y_pred, yt, wk) for _, wk, yt in draws) / len(draws)
 
         # The returned graph uses a snapshot of the extractor's weights, so the in-place
         # AdamW step below cannot invalidate it (the caller back-propagates later).
         snapshot = {k: v.detach().clone() for k, v in self.extractor.named_parameters()}
         y_pred = torch.func.functional_call(self.extractor, snapshot, (z0,))
-        value = self._value(y_pred, y_target, w)
+        value = total(y_pred)
 
         if o.train_extractor and o.extractor_lr > 0:
             # The released loop's order: backward (extractor grads from the same loss),
             # AdamW step, then the EMA follows the updated online weights.
             self.optimizer.zero_grad(set_to_none=True)
-            self._value(self.extractor(z0.detach()), y_target, w).backward()
+            total(self.extractor(z0.detach())).backward()
             self.optimizer.step()
             self.optimizer.zero_grad(set_to_none=True)
             _ema_update(self.ema, self.extractor, o.ema_decay)
@@ -252,6 +264,7 @@ class LmdLoss(Loss):
                 "t": float(t.item()),
                 "w": float(w),
                 "guidance": float(o.guidance),
+                "samples": float(o.samples),
                 "latent_gap_rms": float(((z0 - gp.x0) ** 2).sum().sqrt() / n**0.5),
                 "guided_diff_rms": float(((gp.x0 - gp.x0_uncond) ** 2).sum().sqrt() / n**0.5),
             }
