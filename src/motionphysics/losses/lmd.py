@@ -70,6 +70,7 @@ from motionphysics.losses.prior_common import (
     draw_t_noise,
     encode,
     need_prior,
+    resolve_negative,
     step_weight,
 )
 
@@ -161,9 +162,10 @@ class LmdLoss(Loss):
         prior's predictions take no gradient, so K draws cost K prior calls and one
         backward; they cut the variance that the drawn t and ε add to the gradient."""
         negative_prompt: str = ""
-        """The prompt the guidance is taken against: ``""`` (unconditional, the paper) or a
+        """The prompt the guidance is taken against: ``""`` (unconditional, the paper), a
         contrasting description (e.g. "a soft blob squashes flat" against "a stiff ball
-        bounces high"). With ``form: classifier_score`` a contrasting prompt makes the
+        bounces high"), or ``auto``: the opposite motion with the prompt's subject
+        (``priors.captions.contrast_prompt``; ``""`` when the prompt claims no motion). With ``form: classifier_score`` a contrasting prompt makes the
         loss the pairwise contrast ``x̂0(prompt) − x̂0(negative)``: the only form that
         ordered the tiny prior's parameters the way the words say (model card)."""
         extractor_lr: float = Field(default=2e-5, ge=0.0)
@@ -184,7 +186,8 @@ class LmdLoss(Loss):
     def __init__(self, prior, prompt: str, options: LmdLoss.Options | None = None, device="cpu"):
         self.opts = options or self.Options()
         self.prompt = prompt
-        self.prior = need_prior(self.name, prior, prompt, self.opts.negative_prompt)
+        self.negative_prompt = resolve_negative(self.opts.negative_prompt, prompt)
+        self.prior = need_prior(self.name, prior, prompt, self.negative_prompt)
         check_t_range(self.name, self.prior, self.opts.t_min, self.opts.t_max)
         channels = int(self.prior.latent_shape()[2])
         self.device = torch.device(getattr(self.prior, "device", device))
@@ -219,7 +222,7 @@ class LmdLoss(Loss):
             raise ValueError("lmd needs rendered frames (Prediction.rgb)")
         prior, o = self.prior, self.opts
         z0 = encode(prior, pred.rgb, ctx.rng)  # [1, F_lat, C, h, w], grad to the renders
-        prior.set_prompt(self.prompt, o.negative_prompt)  # a shared prior may have another
+        prior.set_prompt(self.prompt, self.negative_prompt)  # a shared prior may have another
         pdt = next(self.extractor.parameters()).dtype  # float32 (float64 in gradient checks)
         draws = []  # (t, w, y_target) per diffusion draw
         first = None  # the first draw's prediction (for the components)

@@ -19,6 +19,16 @@ from motionphysics.errors import UserInputError
 __all__ = ["draw_t_noise", "encode", "need_prior", "reference_clip", "step_weight"]
 
 
+def resolve_negative(negative_prompt: str, prompt: str) -> str:
+    """A loss's ``negative_prompt`` option as used: ``auto`` becomes the contrasting
+    description of :func:`motionphysics.priors.captions.contrast_prompt`."""
+    if negative_prompt != "auto":
+        return negative_prompt
+    from motionphysics.priors.captions import contrast_prompt
+
+    return contrast_prompt(prompt)
+
+
 def need_prior(loss: str, prior, prompt: str, negative_prompt: str = ""):
     """The build context's prior, with the prompt (and the prompt guidance is taken
     against) set; a one-line error without one."""

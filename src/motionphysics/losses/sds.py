@@ -29,6 +29,7 @@ from motionphysics.losses.prior_common import (
     draw_t_noise,
     encode,
     need_prior,
+    resolve_negative,
     step_weight,
 )
 
@@ -67,7 +68,8 @@ class SdsLoss(Loss):
     def __init__(self, prior, prompt: str, options: SdsLoss.Options | None = None):
         self.opts = options or self.Options()
         self.prompt = prompt
-        self.prior = need_prior(self.name, prior, prompt, self.opts.negative_prompt)
+        self.negative_prompt = resolve_negative(self.opts.negative_prompt, prompt)
+        self.prior = need_prior(self.name, prior, prompt, self.negative_prompt)
         check_t_range(self.name, self.prior, self.opts.t_min, self.opts.t_max)
         self._last: dict[str, float] = {}
 
@@ -82,7 +84,7 @@ class SdsLoss(Loss):
         z0 = encode(prior, pred.rgb, ctx.rng)  # [1, F_lat, C, h, w]
         t, noise = draw_t_noise(ctx.rng, tuple(z0.shape), o.t_min, o.t_max, z0.device)
         z_t = prior.add_noise(z0.detach(), noise, t)
-        prior.set_prompt(self.prompt, o.negative_prompt)  # a shared prior may have another
+        prior.set_prompt(self.prompt, self.negative_prompt)  # a shared prior may have another
         gp = prior.predict(z_t, t, o.guidance)
         alpha_bar = prior.alphas_cumprod[t.long()].float().to(z0.device)
         w = step_weight(o.weighting, alpha_bar).reshape(())

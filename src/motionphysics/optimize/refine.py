@@ -240,7 +240,9 @@ def build_losses(cfg, ctx: LossBuildContext) -> WeightedLoss:
                 f"optimize.losses: loss {spec.type!r} needs a video prior but optimize.prior is "
                 "none; pass --prior NAME"
             )
-        options = LOSSES.options(spec.type, opts)
+        # the prior's own defaults for this loss (VideoPrior.loss_defaults) under the config's
+        defaults = dict(getattr(ctx.prior, "loss_defaults", {}).get(spec.type, {}))
+        options = LOSSES.options(spec.type, {**defaults, **opts})
         terms.append((spec.type, float(spec.weight), cls.build(options, ctx)))
     return WeightedLoss(terms)
 
@@ -396,6 +398,18 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         "prior": name,
         "prior_path": cfg.optimize.prior_path,
         "guidance": guidance,
+        "loss_options": {
+            n: {
+                **lo.opts.model_dump(),
+                **(
+                    {"negative_prompt_used": lo.negative_prompt}
+                    if hasattr(lo, "negative_prompt")
+                    else {}
+                ),
+            }
+            for n, _, lo in loss.terms
+            if hasattr(getattr(lo, "opts", None), "model_dump")
+        },
         "guidance_per_loss": {
             n: float(lo.opts.guidance)
             for n, _, lo in loss.terms

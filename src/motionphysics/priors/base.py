@@ -109,6 +109,11 @@ class VideoPrior(ABC):
     live here so every backend computes them the same way.
     """
 
+    loss_defaults: ClassVar[dict[str, dict[str, object]]] = {}
+    """Per loss name, options the loss takes with this prior unless the config sets
+    them (``optimize.losses[].*`` and ``--guidance`` win); the paper's defaults when
+    empty."""
+
     name: ClassVar[str] = "prior"
     prediction_type: PredictionType
     """What the network predicts: ``epsilon`` (ModelScope, tiny) or ``v_prediction`` (CogVideoX)."""

@@ -27,10 +27,13 @@ __all__ = [
     "GROUPS",
     "HELD_OUT",
     "TRAIN",
+    "OPPOSITE",
     "caption_clip",
+    "contrast_prompt",
     "group_prompt",
     "motion_group",
     "object_noun",
+    "prompt_motion_group",
 ]
 
 GROUPS = (
@@ -246,3 +249,87 @@ def group_prompt(group: str, shape: str, k: int = 0, *, held_out: bool = True) -
     phrases: Sequence[str] = table[group]
     obj = object_noun(shape, 0)
     return f"{_article(obj)} {obj} {phrases[k % len(phrases)]}"
+
+
+# ---- contrasting prompts (``negative_prompt: auto``) ---------------------------------
+
+OPPOSITE: dict[str, str] = {
+    "bounces_high": "squashes_flat",
+    "barely_bounces": "bounces_high",
+    "wobbles": "keeps_shape",
+    "splashes": "oozes",
+    "oozes": "splashes",
+    "keeps_shape": "wobbles",
+    "crumbles": "keeps_shape",
+    "squashes_flat": "bounces_high",
+}
+"""The motion group a prompt of each group is contrasted with."""
+
+MIN_MOTION_SIMILARITY = 0.45
+"""Cosine similarity (MiniLM, mean-pooled) below which a prompt makes no motion claim of
+any group (then there is nothing to contrast it with)."""
+
+_VERBS = {"is", "are", "hits", "falls", "drops", "lands", "stays", "keeps", "flows", "moves",
+          "gets", "goes", "comes", "will", "does", "was", "then", "and"}  # fmt: skip
+
+
+def _sentence_embeddings(texts: list[str]):
+    """Mean-pooled, unit-norm MiniLM sentence embeddings [N, 384] (the prior's encoder)."""
+    import torch.nn.functional as F
+
+    from motionphysics.priors.tiny import text_tokens
+
+    tok = text_tokens(texts)
+    n = (tok.abs().sum(-1) > 0).sum(1, keepdim=True).clamp(min=1)
+    return F.normalize(tok.sum(1) / n, dim=-1)
+
+
+def _split(prompt: str) -> tuple[str, str]:
+    """(subject, predicate): the words of ``prompt`` before its first verb and the rest;
+    ("the object", "") when no verb is found."""
+    starts = {p.split()[0] for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g])} | _VERBS
+    starts |= {p.split()[0] for p in NEUTRAL}
+    words = prompt.strip().rstrip(".!").split()
+    for i, w in enumerate(words):
+        if i > 0 and w.lower().strip(",;") in starts:
+            return " ".join(words[:i]).rstrip(",;"), " ".join(words[i:])
+    return "the object", ""
+
+
+def prompt_motion_group(prompt: str) -> tuple[str | None, float]:
+    """The motion group whose phrasings (training and held-out) a clause of the prompt's
+    predicate (what it says the thing does; clauses split at commas, "and", "then") is
+    closest to, and that similarity. A clause counts only when its closest group is at
+    least MIN_MOTION_SIMILARITY and closer than every neutral phrase ("is dropped").
+    None when no clause counts, or the prompt has no verb."""
+    import re
+
+    _, pred = _split(prompt)
+    clauses = [c.strip() for c in re.split(r",|;|\band\b|\bthen\b", pred) if c.strip()]
+    if not clauses:
+        return None, 0.0
+    phrases = [(g, p) for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g])]
+    emb = _sentence_embeddings(clauses + [p for _, p in phrases] + list(NEUTRAL))
+    k = len(clauses)
+    sims = emb[:k] @ emb[k:].T  # [clauses, phrases + neutral]
+    found: tuple[str | None, float] = (None, 0.0)
+    for c in range(k):
+        row = sims[c].tolist()
+        best: dict[str, float] = {}
+        for (g, _), v in zip(phrases, row[: len(phrases)], strict=True):
+            best[g] = max(best.get(g, -1.0), v)
+        group = max(best, key=best.get)
+        if best[group] >= MIN_MOTION_SIMILARITY and best[group] > max(row[len(phrases) :]):
+            if best[group] > found[1]:
+                found = (group, best[group])
+    return found
+
+
+def contrast_prompt(prompt: str) -> str:
+    """A description of the opposite motion with the prompt's subject: "A stiff ring
+    bounces high" -> "A stiff ring squashes and stays flat". "" when the prompt makes no
+    motion claim (:func:`prompt_motion_group`)."""
+    group, _ = prompt_motion_group(prompt)
+    if group is None:
+        return ""
+    return f"{_split(prompt)[0]} {TRAIN[OPPOSITE[group]][0]}"
