@@ -67,6 +67,46 @@ def test_embedded_prior_refines_without_a_path(tmp_path):
     assert p["optimise"]["boost_requested"] == 8 and p["optimise"]["boost"] == 1
     assert "boost" in p["optimise"]["boost_note"]
     assert recs[0]["frames"] == list(range(1, 8))
+    # the tiny prior's own lmd defaults (TinyPrior.loss_defaults), the negative prompt
+    # derived from the prompt ("... bounces back" -> the opposite motion)
+    lo = p["optimise"]["loss_options"]["lmd"]
+    assert (lo["form"], lo["guidance"], lo["samples"], lo["negative_prompt"]) == (
+        "classifier_score",
+        5.0,
+        8,
+        "auto",
+    )
+    assert lo["negative_prompt_used"] == "A rubber ball squashes and stays flat"
+    assert recs[0]["loss_samples"] == 8.0 and recs[0]["guidance"] == 5.0
+
+
+def test_config_options_win_over_the_priors_loss_defaults(tmp_path):
+    import yaml
+
+    data = yaml.safe_load(TINY.read_text())
+    data["optimize"] = {
+        "losses": [{"type": "lmd", "form": "absolute", "samples": 2, "negative_prompt": ""}]
+    }
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "o"
+    argv = [
+        "run",
+        str(cfg),
+        "--prior",
+        "tiny",
+        "--iters",
+        "1",
+        "--guidance",
+        "7",
+        "--out",
+        str(out),
+    ]
+    assert main([*argv, "--quiet"]) == 0
+    lo = json.loads((out / "params.json").read_text())["optimise"]["loss_options"]["lmd"]
+    # every option the config or --guidance sets is taken over the prior's default
+    assert (lo["form"], lo["samples"], lo["negative_prompt_used"]) == ("absolute", 2, "")
+    assert lo["guidance"] == 7.0
 
 
 def test_bad_params_file(tmp_path, capsys):

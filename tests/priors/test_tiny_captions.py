@@ -149,3 +149,46 @@ def test_caption_uses_only_its_groups_phrases(held_out):
     m_none = dict(m, rebound=0.32, deform=0.055)  # between bounce classes and squash
     text, g = caption_clip(m_none, "elastic", "sphere", rng)
     assert g is None and any(text.endswith(p) for p in NEUTRAL)
+
+
+@pytest.mark.parametrize(
+    ("prompt", "group", "negative"),
+    [
+        (
+            "A stiff ring is dropped, stays rigid and bounces high off the ground",
+            "bounces_high",
+            "A stiff ring squashes and stays flat",
+        ),
+        (
+            "A soft rubber duck is dropped, squashes and wobbles",
+            "wobbles",
+            "A soft rubber duck keeps its shape",
+        ),
+        ("Thick honey oozes slowly over the floor", "oozes", "Thick honey splashes and spreads"),
+        ("Thin runny water splashes and spreads thin", "splashes", "Thin runny water oozes slowly"),
+        ("A sand castle crumbles into a heap", "crumbles", "A sand castle keeps its shape"),
+        ("A rubber duck hits the ground and bounces back", "bounces_high", None),
+        # no motion claim: nothing to contrast with
+        ("A rubber duck", None, ""),
+        ("A metal rod is dropped on the floor", None, ""),
+    ],
+)
+def test_contrast_prompt_is_the_opposite_motion_with_the_same_subject(prompt, group, negative):
+    from motionphysics.priors.captions import OPPOSITE, contrast_prompt, prompt_motion_group
+
+    assert prompt_motion_group(prompt)[0] == group
+    neg = contrast_prompt(prompt)
+    if negative is not None:
+        assert neg == negative
+    if group is not None:
+        assert neg.endswith(TRAIN[OPPOSITE[group]][0])
+        assert prompt_motion_group(neg)[0] == OPPOSITE[group]  # the contrast is a claim too
+
+
+def test_opposites_pair_up_the_groups():
+    from motionphysics.priors.captions import OPPOSITE
+
+    assert set(OPPOSITE) == set(GROUPS) and set(OPPOSITE.values()) <= set(GROUPS)
+    assert all(OPPOSITE[g] != g for g in GROUPS)
+    for a, b in (("bounces_high", "squashes_flat"), ("splashes", "oozes")):
+        assert OPPOSITE[a] == b and OPPOSITE[b] == a
