@@ -162,7 +162,7 @@ def test_caption_uses_only_its_groups_phrases(held_out):
         (
             "A soft rubber duck is dropped, squashes and wobbles",
             "wobbles",
-            "A soft rubber duck keeps its shape",
+            "A soft rubber duck bounces high",
         ),
         ("Thick honey oozes slowly over the floor", "oozes", "Thick honey splashes and spreads"),
         ("Thin runny water splashes and spreads thin", "splashes", "Thin runny water oozes slowly"),

@@ -256,14 +256,17 @@ def group_prompt(group: str, shape: str, k: int = 0, *, held_out: bool = True) -
 OPPOSITE: dict[str, str] = {
     "bounces_high": "squashes_flat",
     "barely_bounces": "bounces_high",
-    "wobbles": "keeps_shape",
+    "wobbles": "bounces_high",
     "splashes": "oozes",
     "oozes": "splashes",
     "keeps_shape": "wobbles",
     "crumbles": "keeps_shape",
     "squashes_flat": "bounces_high",
 }
-"""The motion group a prompt of each group is contrasted with."""
+"""The motion group a prompt of each group is contrasted with. Soft motions (wobbles,
+squashes flat, barely bounces) are contrasted with the high bounce, the motion the tiny
+prior knows best (the largest of the solid groups in its data): against "keeps its
+shape" a "wobbly" prompt pushed E up on the real donut capture, as "bounces high" did."""
 
 MIN_MOTION_SIMILARITY = 0.45
 """Cosine similarity (MiniLM, mean-pooled) below which a prompt makes no motion claim of
