@@ -292,10 +292,13 @@ class TinyPrior(VideoPrior):
             "negative_prompt": "auto",
         }
     }
-    """Options ``lmd`` takes with this prior unless the config sets them (see the model
-    card): the paper's form (absolute, g = 100, one draw, unconditional contrast) moved E
-    the wrong way with these weights; the pairwise contrast against the opposite motion
-    at low guidance, averaged over 8 draws, moved it the way the words say."""
+    """Options ``lmd`` takes with this prior unless the config sets them. Measured
+    through ``run`` (BENCHMARKS.md, model card), neither form meets the issue's
+    direction bar with these weights. The paper's form (absolute, g = 100, one draw,
+    unconditional contrast) moved E the wrong way on both test scenes. This one (the
+    pairwise contrast against the opposite motion at g = 5, averaged over 8 draws)
+    separates viscosity 6x the right way on the real capture, leaves E about where
+    the two prompts started, and is not robust across scenes."""
 
     name = "tiny"
     prediction_type = "epsilon"
