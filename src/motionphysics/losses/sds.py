@@ -59,11 +59,13 @@ class SdsLoss(Loss):
         form: Literal["sds", "classifier_score"] = "sds"
         """``sds``: ε̂ − ε; ``classifier_score``: ε̂ − ε̂_uncond."""
         negative_prompt: str = ""
-        """The prompt the guidance is taken against: ``""`` (unconditional, the paper) or a
+        """The prompt the guidance is taken against: ``""`` (unconditional, the paper), a
         contrasting description (e.g. "a soft blob squashes flat" against "a stiff ball
-        bounces high"). With ``form: classifier_score`` a contrasting prompt makes the
-        loss the pairwise contrast ``ε̂(prompt) − ε̂(negative)``: the only form that
-        ordered the tiny prior's parameters the way the words say (model card)."""
+        bounces high"), or ``auto``: the opposite motion with the prompt's subject
+        (``priors.captions.contrast_prompt``; ``""`` when the prompt claims no motion).
+        With ``form: classifier_score`` a contrasting prompt makes the loss the pairwise contrast ``ε̂(prompt) − ε̂(negative)``: the form under
+        which the tiny prior ordered simulated parameter sweeps the right way (its model
+        card; through ``run`` it did not reach the direction bar)."""
 
     def __init__(self, prior, prompt: str, options: SdsLoss.Options | None = None):
         self.opts = options or self.Options()
