@@ -105,3 +105,13 @@ def _fd_check(fn, leaves, h: float = 1e-6, rtol: float = 1e-6) -> None:
 def fd_check():
     """``fd_check(fn, leaves, h=1e-6, rtol=1e-6)``: see :func:`_fd_check`."""
     return _fd_check
+
+
+def restore_sigint() -> None:
+    """``preexec_fn`` for a child process a test interrupts with SIGINT. A shell without
+    job control starts background jobs with SIGINT ignored, and a Python child that
+    starts with it ignored never raises KeyboardInterrupt, so the test would see exit 0
+    or a hang instead of the behaviour under test."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

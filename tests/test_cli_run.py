@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+from tests.conftest import restore_sigint  # noqa: E402
+
 from motionphysics.cli import main
 
 DATA = Path(__file__).parent / "data"
@@ -153,6 +155,7 @@ def test_ctrl_c_leaves_consistent_partial_run(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=restore_sigint,
     )
     try:
         deadline = time.time() + 240

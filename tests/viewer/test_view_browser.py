@@ -22,6 +22,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from chromium_cdp import Browser, find_chromium, free_port  # noqa: E402
+from tests.conftest import restore_sigint  # noqa: E402
 
 pytestmark = pytest.mark.skipif(
     find_chromium() is None,
@@ -48,6 +49,7 @@ def _start_view(run_dir: Path, port: int, *extra: str) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=restore_sigint,
     )
     deadline = time.monotonic() + 120
     lines = []

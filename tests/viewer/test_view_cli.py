@@ -13,6 +13,7 @@ from motionphysics.cli import main
 
 sys.path.insert(0, str(Path(__file__).parent))
 from chromium_cdp import free_port  # noqa: E402
+from tests.conftest import restore_sigint  # noqa: E402
 
 
 def _one_line_error(capsys) -> str:
@@ -72,6 +73,7 @@ def test_sigint_stops_cleanly(tiny_run):
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=restore_sigint,
     )
     line = ""
     for _ in range(20):

@@ -22,6 +22,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 from chromium_cdp import free_port  # noqa: E402
+from tests.conftest import restore_sigint  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -45,6 +46,7 @@ def _serve(run_dir: Path) -> tuple[subprocess.Popen, str]:
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=restore_sigint,
     )
     lines = []
     while True:
