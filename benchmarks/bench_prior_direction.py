@@ -88,11 +88,11 @@ def _scenes(tmp: Path, which: list[str]) -> dict[str, dict]:
     return out
 
 
-def _config(scene: dict, material: dict, prompt: str, loss: dict, iters: int, seed: int) -> dict:
+def _config(scene: dict, pair: dict, prompt: str, loss: dict, iters: int, seed: int) -> dict:
     return {
         "scene": scene,
         "prompt": prompt,
-        "material": dict(material),
+        "material": dict(pair["start"]),
         "sim": {"grid": 24, "frames": 16, "frame_dt": 0.05, "substeps": "auto"},
         "boundary_conditions": [
             {
@@ -110,7 +110,7 @@ def _config(scene: dict, material: dict, prompt: str, loss: dict, iters: int, se
             "losses": [loss],
             "iterations": iters,
             "seed": seed,
-            "params": [next(k for k in material if k not in ("class", "density", "nu", "kappa"))],
+            "params": [pair["param"]],
         },
     }
 
@@ -146,9 +146,7 @@ def direction(args, tmp: Path) -> dict:
                     loss = {"type": args.loss, **args.loss_options}
                     if args.contrast:
                         loss["negative_prompt"] = pair[other].format(obj=obj)
-                    cfg = _config(
-                        scene, pair["start"], pair[side].format(obj=obj), loss, args.iters, seed
-                    )
+                    cfg = _config(scene, pair, pair[side].format(obj=obj), loss, args.iters, seed)
                     key = (sname, cls, seed, side)
                     jobs.append((key, cfg, args.out / f"{len(jobs):03d}"))
     with ThreadPoolExecutor(args.workers) as pool:
@@ -196,7 +194,7 @@ def invariance(args, tmp: Path) -> dict:
                 "max_particles": 1500,
             }
             loss = {"type": loss_type, **args.loss_options}
-            cfg = _config(scene, pair["start"], pair["up"].format(obj="bird"), loss, args.iters, 0)
+            cfg = _config(scene, pair, pair["up"].format(obj="bird"), loss, args.iters, 0)
             jobs.append(((loss_type, v), cfg, args.out / f"inv-{loss_type}-{v}"))
     with ThreadPoolExecutor(args.workers) as pool:
         futs = {key: pool.submit(_run, cfg, out, args.prior_path) for key, cfg, out in jobs}

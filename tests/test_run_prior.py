@@ -58,44 +58,9 @@ def foreign_t5_tokenizer(directory: Path):
 def write_foreign_cogvideox(directory: Path, seed: int = 3) -> Path:
     """CogVideoX with 8 latent channels, patch size 1, text length 8, T5 width 24,
     an epsilon-free v-prediction DDPM-style scheduler config with other betas."""
-    import torch
-    from diffusers import (
-        AutoencoderKLCogVideoX,
-        CogVideoXDPMScheduler,
-        CogVideoXPipeline,
-        CogVideoXTransformer3DModel,
-    )
-    from transformers import T5Config, T5EncoderModel
+    from diffusers import CogVideoXDPMScheduler
+    from tests.priors.tiny_pipelines import write_cogvideox_pipeline
 
-    tokenizer = foreign_t5_tokenizer(directory.parent / (directory.name + "-spm"))
-    torch.manual_seed(seed)
-    transformer = CogVideoXTransformer3DModel(
-        num_attention_heads=2,
-        attention_head_dim=16,  # inner 32: the sin-cos split 1/4 time, 3/8 + 3/8 space
-        in_channels=8,
-        out_channels=8,
-        time_embed_dim=4,
-        text_embed_dim=24,
-        num_layers=2,
-        sample_width=2,
-        sample_height=2,
-        sample_frames=13,
-        patch_size=1,
-        temporal_compression_ratio=4,
-        max_text_seq_length=8,
-    )
-    vae = AutoencoderKLCogVideoX(
-        in_channels=3,
-        out_channels=3,
-        down_block_types=("CogVideoXDownBlock3D",) * 4,
-        up_block_types=("CogVideoXUpBlock3D",) * 4,
-        block_out_channels=(4, 8, 8, 8),
-        latent_channels=8,
-        layers_per_block=1,
-        norm_num_groups=2,
-        temporal_compression_ratio=4,
-        scaling_factor=0.7,
-    )
     scheduler = CogVideoXDPMScheduler(
         snr_shift_scale=1.0,
         beta_start=0.001,
@@ -105,25 +70,34 @@ def write_foreign_cogvideox(directory: Path, seed: int = 3) -> Path:
         rescale_betas_zero_snr=True,
         timestep_spacing="trailing",
     )
-    text_encoder = T5EncoderModel(
-        T5Config(
-            vocab_size=len(tokenizer),
-            d_model=24,
-            d_kv=6,
-            d_ff=20,
-            num_layers=1,
-            num_heads=4,
-            relative_attention_num_buckets=4,
-        )
+    return write_cogvideox_pipeline(
+        directory,
+        foreign_t5_tokenizer(directory.parent / (directory.name + "-spm")),
+        scheduler,
+        seed=seed,
+        reseed=False,
+        transformer={
+            "num_attention_heads": 2,
+            "attention_head_dim": 16,  # inner 32: the sin-cos split 1/4 time, 3/8 + 3/8 space
+            "in_channels": 8,
+            "out_channels": 8,
+            "time_embed_dim": 4,
+            "text_embed_dim": 24,
+            "num_layers": 2,
+            "sample_frames": 13,
+            "patch_size": 1,
+            "max_text_seq_length": 8,
+        },
+        vae={"block_out_channels": (4, 8, 8, 8), "latent_channels": 8, "scaling_factor": 0.7},
+        text={
+            "d_model": 24,
+            "d_kv": 6,
+            "d_ff": 20,
+            "num_layers": 1,
+            "num_heads": 4,
+            "relative_attention_num_buckets": 4,
+        },
     )
-    CogVideoXPipeline(
-        tokenizer=tokenizer,
-        text_encoder=text_encoder,
-        vae=vae,
-        transformer=transformer,
-        scheduler=scheduler,
-    ).save_pretrained(directory)
-    return directory
 
 
 def foreign_clip_tokenizer():

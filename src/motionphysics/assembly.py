@@ -1168,12 +1168,8 @@ def assemble(
         }
         # The config records the material that is simulated (before any optimisation),
         # so re-running run.yaml reproduces the run.
-        mat_block = {
-            "class": material.cls,
-            "density": float(material.density),
-            **{k: float(v) for k, v in material.values.items()},
-        }
-        cfg = config_from_dict({**config_to_dict(cfg), "material": mat_block}, config_origin)
+        data = {**config_to_dict(cfg), "material": material.to_dict()}
+        cfg = config_from_dict(data, config_origin)
     return Assembly(
         cfg=cfg,
         device=device,
@@ -1357,11 +1353,7 @@ def _assemble_objects(
         # run.yaml records each object's simulated material (re-running reproduces it)
         data = config_to_dict(cfg)
         for entry, mat in zip(data["objects"], materials, strict=True):
-            entry["material"] = {
-                "class": mat.cls,
-                "density": float(mat.density),
-                **{k: float(v) for k, v in mat.values.items()},
-            }
+            entry["material"] = mat.to_dict()
         cfg = config_from_dict(data, config_origin)
     material = SceneMaterial(objects, _np(sim_scene.object_id).astype(np.int64))
     return Assembly(

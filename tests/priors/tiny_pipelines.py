@@ -88,6 +88,49 @@ def tiny_clip_tokenizer(model_max_length: int = 16):
     return tok
 
 
+def write_cogvideox_pipeline(
+    directory, tokenizer, scheduler, *, seed: int, transformer: dict, vae: dict, text: dict,
+    reseed: bool = True,
+) -> Path:  # fmt: skip
+    """Write a CogVideoX pipeline (T5 text encoder, 3-D VAE of four blocks, transformer,
+    ``scheduler``) in diffusers' ``save_pretrained`` layout, from the keyword arguments of
+    each component over the layout every builder here shares. The torch seed is set
+    before the transformer and, with ``reseed``, again before the VAE and the text
+    encoder."""
+    import torch
+    from diffusers import AutoencoderKLCogVideoX, CogVideoXPipeline, CogVideoXTransformer3DModel
+    from transformers import T5Config, T5EncoderModel
+
+    directory = Path(directory)
+    torch.manual_seed(seed)
+    net = CogVideoXTransformer3DModel(
+        sample_width=2, sample_height=2, temporal_compression_ratio=4, **transformer
+    )
+    if reseed:
+        torch.manual_seed(seed)
+    vae_model = AutoencoderKLCogVideoX(
+        in_channels=3,
+        out_channels=3,
+        down_block_types=("CogVideoXDownBlock3D",) * 4,
+        up_block_types=("CogVideoXUpBlock3D",) * 4,
+        layers_per_block=1,
+        norm_num_groups=2,
+        temporal_compression_ratio=4,
+        **vae,
+    )
+    if reseed:
+        torch.manual_seed(seed)
+    text_encoder = T5EncoderModel(T5Config(vocab_size=len(tokenizer), **text))
+    CogVideoXPipeline(
+        tokenizer=tokenizer,
+        text_encoder=text_encoder,
+        vae=vae_model,
+        transformer=net,
+        scheduler=scheduler,
+    ).save_pretrained(directory)
+    return directory
+
+
 def write_tiny_cogvideox(
     directory, *, rope: bool = False, v_prediction: bool = True, seed: int = 0
 ) -> Path:
@@ -97,48 +140,8 @@ def write_tiny_cogvideox(
     ``v_prediction``: the CogVideoX DDIM scheduler of the published models (zero terminal
     SNR); otherwise a plain epsilon DDIM, as diffusers' dummy uses.
     Runs at 16x16 px, 9 frames -> latents [1, 3, 4, 2, 2]."""
-    import torch
-    from diffusers import (
-        AutoencoderKLCogVideoX,
-        CogVideoXDDIMScheduler,
-        CogVideoXPipeline,
-        CogVideoXTransformer3DModel,
-        DDIMScheduler,
-    )
-    from transformers import T5Config, T5EncoderModel
+    from diffusers import CogVideoXDDIMScheduler, DDIMScheduler
 
-    directory = Path(directory)
-    tokenizer = tiny_t5_tokenizer()
-    torch.manual_seed(seed)
-    transformer = CogVideoXTransformer3DModel(
-        num_attention_heads=4,
-        # RoPE splits the head dim 1/4 time + 3/8 + 3/8 space, each even: 16 is the least.
-        attention_head_dim=16 if rope else 8,
-        in_channels=4,
-        out_channels=4,
-        time_embed_dim=2,
-        text_embed_dim=32,
-        num_layers=1,
-        sample_width=2,
-        sample_height=2,
-        sample_frames=9,
-        patch_size=2,
-        temporal_compression_ratio=4,
-        max_text_seq_length=16,
-        use_rotary_positional_embeddings=rope,
-    )
-    torch.manual_seed(seed)
-    vae = AutoencoderKLCogVideoX(
-        in_channels=3,
-        out_channels=3,
-        down_block_types=("CogVideoXDownBlock3D",) * 4,
-        up_block_types=("CogVideoXUpBlock3D",) * 4,
-        block_out_channels=(8, 8, 8, 8),
-        latent_channels=4,
-        layers_per_block=1,
-        norm_num_groups=2,
-        temporal_compression_ratio=4,
-    )
     if v_prediction:
         scheduler = CogVideoXDDIMScheduler(
             snr_shift_scale=3.0,
@@ -154,27 +157,35 @@ def write_tiny_cogvideox(
         )
     else:
         scheduler = DDIMScheduler()
-    torch.manual_seed(seed)
-    text_encoder = T5EncoderModel(
-        T5Config(
-            vocab_size=len(tokenizer),
-            d_model=32,
-            d_kv=8,
-            d_ff=37,
-            num_layers=2,
-            num_heads=4,
-            relative_attention_num_buckets=8,
-        )
+    return write_cogvideox_pipeline(
+        directory,
+        tiny_t5_tokenizer(),
+        scheduler,
+        seed=seed,
+        transformer={
+            "num_attention_heads": 4,
+            # RoPE splits the head dim 1/4 time + 3/8 + 3/8 space, each even: 16 is the least.
+            "attention_head_dim": 16 if rope else 8,
+            "in_channels": 4,
+            "out_channels": 4,
+            "time_embed_dim": 2,
+            "text_embed_dim": 32,
+            "num_layers": 1,
+            "sample_frames": 9,
+            "patch_size": 2,
+            "max_text_seq_length": 16,
+            "use_rotary_positional_embeddings": rope,
+        },
+        vae={"block_out_channels": (8, 8, 8, 8), "latent_channels": 4},
+        text={
+            "d_model": 32,
+            "d_kv": 8,
+            "d_ff": 37,
+            "num_layers": 2,
+            "num_heads": 4,
+            "relative_attention_num_buckets": 8,
+        },
     )
-    pipe = CogVideoXPipeline(
-        tokenizer=tokenizer,
-        text_encoder=text_encoder,
-        vae=vae,
-        transformer=transformer,
-        scheduler=scheduler,
-    )
-    pipe.save_pretrained(directory)
-    return directory
 
 
 def write_modelscope_pipeline(

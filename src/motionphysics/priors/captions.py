@@ -19,6 +19,7 @@ This module must not import torch or the simulator.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -287,11 +288,17 @@ def _sentence_embeddings(texts: list[str]):
     return F.normalize(tok.sum(1) / n, dim=-1)
 
 
+@functools.cache
+def _verb_starts() -> frozenset[str]:
+    """Words that begin a predicate: the first words of every phrasing, and _VERBS."""
+    phrases = [p for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g])] + list(NEUTRAL)
+    return frozenset(p.split()[0] for p in phrases) | _VERBS
+
+
 def _split(prompt: str) -> tuple[str, str]:
     """(subject, predicate): the words of ``prompt`` before its first verb and the rest;
     ("the object", "") when no verb is found."""
-    starts = {p.split()[0] for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g])} | _VERBS
-    starts |= {p.split()[0] for p in NEUTRAL}
+    starts = _verb_starts()
     words = prompt.strip().rstrip(".!").split()
     for i, w in enumerate(words):
         if i > 0 and w.lower().strip(",;") in starts:

@@ -161,7 +161,6 @@ class _ContrastPrompts:
         from motionphysics.priors.captions import TRAIN
 
         self.shapes = sorted(set(shapes))
-        self.key: list[tuple[int, int]] = []  # (group, shape) -> rows
         texts = []
         self.rows: dict[tuple[int, int], list[int]] = {}
         for gi, g in enumerate(GROUPS):

@@ -297,23 +297,7 @@ def fit_domain(
     if motion is not None:
         down = np.maximum(np.asarray(motion[0], dtype=np.float64), -MOTION_CAP * ext)
         up = np.minimum(np.asarray(motion[1], dtype=np.float64), MOTION_CAP * ext)
-        grown_lo, grown_hi = lo + down, hi + up
-        for bc in boundary_conditions:  # motion stops at the planes in front of the object
-            if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
-                continue
-            n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
-            p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
-            nn = float(np.linalg.norm(n))
-            if not nn > 0:
-                continue
-            a = int(np.argmax(np.abs(n)))
-            if abs(abs(n[a]) / nn - 1.0) > 1e-9:
-                continue
-            if n[a] > 0 and p[a] <= lo[a]:
-                grown_lo[a] = max(grown_lo[a], p[a])
-            elif n[a] < 0 and p[a] >= hi[a]:
-                grown_hi[a] = min(grown_hi[a], p[a])
-        lo, hi = grown_lo, grown_hi
+        lo, hi = _stop_at_planes(lo, hi, lo + down, hi + up, boundary_conditions)
     lo = lo - 0.5 * ext
     hi = hi + 0.5 * ext
     for bc in boundary_conditions:
@@ -738,6 +722,12 @@ def _grown_box(points, sim_cfg, forces, boundary_conditions, material_class, vel
         ext = fallback
     grown_lo = lo + np.maximum(down, -MOTION_CAP * ext)
     grown_hi = hi + np.minimum(up, MOTION_CAP * ext)
+    return _stop_at_planes(lo, hi, grown_lo, grown_hi, boundary_conditions)
+
+
+def _stop_at_planes(lo, hi, grown_lo, grown_hi, boundary_conditions):
+    """``grown_lo``/``grown_hi`` (the box ``lo``/``hi`` grown by its motion), stopped at
+    the axis-aligned non-cut collider planes the box faces (motion ends there)."""
     for bc in boundary_conditions:
         if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
             continue

@@ -236,12 +236,16 @@ class Rollout:
         a tape and each substep is re-recorded on its own tape (one grid in memory).
         """
         n = k1 - k0
-        if (k0 % self.substeps == 0 and n == self.substeps and k1 // n in self._kept) or (
-            self._span_bytes(n, k0) <= self.tape_memory
-        ):
+        if self._kept_frame(k0, k1) is not None or self._span_bytes(n, k0) <= self.tape_memory:
             self._backward_span_taped(k0, k1, adj, ctx)
         else:
             self._backward_span_stepwise(k0, k1, adj, ctx)
+
+    def _kept_frame(self, k0: int, k1: int) -> int | None:
+        """The frame whose kept tape covers substeps k0 .. k1-1 exactly, or None."""
+        S = self.substeps
+        f = k1 // S
+        return f if (k0 == (f - 1) * S and k1 == f * S and f in self._kept) else None
 
     def _start_state(self, k0: int, out: State, ctx: dict[str, Any]) -> None:
         """Write the state at global substep k0 into ``out`` (from the nearest checkpoint)."""
@@ -297,8 +301,8 @@ class Rollout:
     def _backward_span_taped(self, k0: int, k1: int, adj: State, ctx: dict[str, Any]) -> None:
         wp = self.wp
         n = k1 - k0
-        S = self.substeps
-        kept = self._kept.pop(k1 // S, None) if (k0 % S == 0 and n == S) else None
+        frame = self._kept_frame(k0, k1)
+        kept = self._kept.pop(frame) if frame is not None else None
         if kept is not None:
             tape, states = kept  # recorded by forward(record_tapes=True)
         else:
