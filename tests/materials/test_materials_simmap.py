@@ -17,6 +17,9 @@ from motionphysics.materials.simmap import (
     p_wave_speed,
     physical_to_sim,
     sim_to_physical,
+    visible_changes,
+    visible_stiffness,
+    visible_strains,
 )
 
 CLASSES = list(MATERIALS)
@@ -93,12 +96,19 @@ def test_monotone_in_every_parameter(cls, dx, dt):
         assert all(d > 0 for d in diffs), (name, outs)
 
 
-def test_identity_when_everything_is_stable():
+def test_identity_where_it_can_be_seen_and_the_budget_allows():
+    # A tiny step: nothing is forced by the budget. What can be seen is simulated as
+    # asked; steel's stiffness cannot be seen in a 0.3 m drop (its strains stay below
+    # 0.5 %), so it is compressed, but never below the visible threshold.
     ctx = SimContext(1 / 128, 1e-9, 7850.0, 0.3)
     p, _ = validate("metal", {"E": 2e11, "nu": 0.3, "tau_Y": 2.5e8}, 7850)
     sim = physical_to_sim(p, ctx)
-    assert sim["E"] == pytest.approx(2e11, rel=1e-12)
-    assert sim["tau_Y"] == pytest.approx(2.5e8, rel=1e-12)
+    assert visible_stiffness(ctx) <= sim["E"] < 2e11
+    assert max(visible_strains("metal", sim["E"], ctx).values()) <= ctx.visible_strain * (1 + 1e-9)
+    assert visible_changes(p, sim, ctx) == []
+    rubber = MaterialParams("elastic", 1100.0, {"E": 1e6, "nu": 0.4})
+    rctx = SimContext(1 / 128, 1e-9, 1100.0, 0.3)
+    assert physical_to_sim(rubber, rctx)["E"] == 1e6  # a visible stiffness: as asked
     w, _ = validate("newtonian", {"mu": 1e-3, "kappa": 2.2e9}, 1000)
     assert physical_to_sim(w, ctx)["mu"] == 1e-3
 

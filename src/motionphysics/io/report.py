@@ -175,7 +175,10 @@ def render_report(
             for c in clamps
         )
         out.append(f"<p class='muted'>Clamped into the handbook range: {items}</p>")
-    simctx = params.get("sim_context") or {}
+    simctx = dict(params.get("sim_context") or {})
+    changes = simctx.pop("visible_changes", None) or []
+    for line in changes:
+        out.append(f"<p class='warn'><b>Visible change:</b> {e(str(line))}</p>")
     if simctx:
         items = ", ".join(f"{e(k)} = {_fmt(v)}" for k, v in simctx.items())
         out.append(f"<p class='muted'>Simulation: {items}</p>")

@@ -10,21 +10,42 @@ report both values, nothing else scales parameters.
 
 Rules, per parameter (``lo``/``hi`` = the class's handbook range from
 :mod:`~motionphysics.materials.catalog`; all maps are strictly monotone,
-continuous, invertible, and identity when the whole range is already stable):
+continuous, invertible, and identity wherever the value can be seen in this scene and
+the time-step budget allows it):
 
 ``nu``  (solids) identity below 0.45; ``[0.45, 0.5]`` is mapped linearly onto
         ``[0.45, 0.49]`` so nearly incompressible solids (rubber, nu = 0.5) keep a
         finite P-wave modulus: ``(1-nu)/((1+nu)(1-2nu))`` is 17 at 0.49, infinite
         at 0.5.
-``E``   (elastic, plasticine, metal, foam) ``log E`` is mapped affinely from
-        ``[log lo, log hi]`` onto ``[log lo_sim, log cap]`` where
-        ``cap = min(hi, density * c_max^2 / M(nu_sim))`` is the largest stiffness
-        whose P-wave speed ``sqrt(E M(nu) / density)`` is ``c_max`` and
-        ``lo_sim = min(lo, max(cap * lo/hi, min(20 rho g L, cap/2)))``: keep the
-        class's full ratio hi/lo when it fits, else lift the softest member so it
-        still strains at most ~5 % under its own weight (20 rho g L), never closer
-        than a factor 2 to the cap so the order of materials inside the class
-        survives (rubber stays softer than steel).
+``E``   (elastic, plasticine, metal, foam) simulated **as given** up to a knee, compressed
+        above it: ``log E`` affine from ``[log knee, log hi_eff]`` onto
+        ``[log knee, log top]``. ``cap = density c_max^2 / M(nu_sim)`` is the stiffest
+        value the time step allows (``c_max`` from the budget: ``sim.max_substeps`` under
+        ``substeps: auto``, the fixed count otherwise); ``E_vis``
+        (:func:`visible_stiffness`) the stiffness above which every strain a viewer could
+        see in this scene stays below ``visible_strain`` (0.5 % of the object's size);
+        ``knee = min(E_vis, cap / 1.25)``, ``top = min(cap, 4 knee)``,
+        ``hi_eff = max(class high, 16 top)``. So a stiffness that shows is simulated as
+        asked whenever the budget allows it, one that cannot be seen is compressed to
+        just above ``E_vis`` (order kept: steel stays stiffer than rubber; cost that of
+        ``E_vis``), and where the budget forces a visible change the plan says so in one
+        line with the consequence (:func:`visible_changes`).
+
+What can be seen (per object, from the prepared scene and the config: ``SimContext``'s
+``speed_met``, ``thickness``, ``length``, ``gravity``, ``frame_dt``, ``duration``):
+
+* sag under its own weight and bending of its slender part:
+  ``rho g L / E max(1, 2 (L / t)^2)`` (a round cantilever of length ``L``, thickness
+  ``t`` sags ``2 rho g L^4 / (E t^2)``);
+* the squash of an impact at the largest speed it meets ``v`` (drop onto the support
+  below it, initial, imposed and impulse velocities, rotations, other objects):
+  ``v / c`` with ``c = sqrt(E / rho)``, counted by the share of a frame the contact
+  (``2 L / c``) lasts: a squash over in a millisecond is not in a 25 fps video;
+* vibrations: an elastic wave crossing the object in less than a quarter of a frame is
+  not resolved (floor ``E_vis >= rho (4 L / frame_dt)^2``);
+* viscous flow (:func:`visible_viscosity`): ``rho L (g T + v) / mu`` of its size over
+  the run ``T``.
+
 ``tau_Y`` (plasticine, metal, foam) follows the compressed ``E`` by one of two rules.
         Both cannot hold at once once ``E`` is compressed: ``rho c v / tau_Y`` and
         ``tau_Y / E`` fix ``c`` when ``rho`` and ``v`` are physical.
@@ -60,13 +81,13 @@ continuous, invertible, and identity when the whole range is already stable):
 ``kappa`` (fluids) replaced by the weakly compressible value of SPH/MPM fluid
         solvers: ``kappa_sim = kappa * s`` (order and the hi/lo ratio kept), ``s``
         chosen so the sound speed ``sqrt(kappa_sim / density)`` at ``kappa = lo``
-        is ``10 * sqrt(2 g L)`` (density fluctuations ~ Ma^2 <= 1 %), capped so
+        is ``10 v`` (``v``: the largest speed met, at least ``sqrt(2 g L)``) (density fluctuations ~ Ma^2 <= 1 %), capped so
         the speed at ``kappa = hi`` is at most ``c_max`` (with ``g = 0``: at ``c_max``).
-``mu``  (fluids, dynamic viscosity) identity up to ``knee = cap_mu / 10`` with
-        ``cap_mu = min(hi, 0.5 * density * dx^2 / (6 dt))``; above the knee
-        ``log mu`` is mapped affinely from ``[log knee, log hi]`` onto
-        ``[log knee, log cap_mu]`` (water and oils pass through; honey-like
-        pastes are compressed at coarse time steps).
+``mu``  (fluids, dynamic viscosity) the stiffness rule with ``mu_vis``
+        (:func:`visible_viscosity`) and the explicit viscosity limit
+        ``0.5 * density * dx^2 / (6 dt)`` as the cap: a viscosity that shows is
+        simulated as asked within the budget (honey included), one too large to show
+        over the run is compressed just above ``mu_vis``.
 ``eta``, ``theta_fric`` (degrees), ``n`` and ``density`` pass through.
 ``tau_Y`` (non-Newtonian) is not compressed (it sets a mound height ``tau_Y/(rho g)``
         against gravity, which is not compressed either) but converted: the
@@ -138,10 +159,13 @@ NU_KNEE = 0.45
 NU_SIM_MAX = 0.49
 """Simulation Poisson's ratio of a physical 0.5 (incompressible)."""
 NU_PHYS_MAX = 0.5
-GRAVITY_STRAIN = 0.05
-"""Largest strain under own weight of the softest mapped solid of a class (when compressed)."""
-MIN_CLASS_RATIO = 2.0
-"""Smallest stiffness ratio kept between the stiffest and softest member of a class."""
+ORDER_RATIO = 4.0
+"""Stiffness (and viscosity) that cannot be seen is compressed into ``[knee, 4 knee]``
+above the visible threshold: the order of materials survives (steel stays stiffer than
+rubber), the cost stays that of the visible threshold."""
+BUDGET_RATIO = 1.25
+"""Where the budget binds (the visible threshold is above what it allows), values up to
+``cap / 1.25`` are simulated as asked and stiffer ones compressed into the last 25 %."""
 MACH_FACTOR = 10.0
 """Fluid sound speed at kappa = lo, in units of the flow speed sqrt(2 g L)."""
 MU_KNEE_FACTOR = 10.0
@@ -202,8 +226,23 @@ class SimContext:
     time step forces a large stiffness compression; ``auto`` (default): ``impact``
     for metal, ``strain`` for plasticine and foam (module docstring)."""
 
+    speed_met: float | None = None
+    """Largest speed [m/s] the object meets in this scene (a drop under gravity, initial,
+    imposed and impulse velocities, the rim speed of imposed rotations, closing speeds of
+    several objects); None: the fall over its own size, ``sqrt(2 g L)``."""
+    thickness: float | None = None
+    """Thickness [m] of the object's most slender part (bending sag grows with
+    ``(L / thickness)^2``); None: a compact object (``length``)."""
+    frame_dt: float = 0.04
+    """Seconds between output frames (what a viewer can resolve)."""
+    duration: float | None = None
+    """Simulated time of the run [s] (how long a slow flow has to show); None: 2 s."""
+    visible_strain: float = 0.005
+    """Strain a viewer can see (0.5 % of the object's size: about one pixel of a
+    200-pixel object); below it a change of stiffness or viscosity is invisible."""
+
     def __post_init__(self):
-        for name in ("dx", "dt", "density", "length"):
+        for name in ("dx", "dt", "density", "length", "frame_dt"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SimContext.{name} must be a positive finite number, got {v!r}")
@@ -229,6 +268,24 @@ class SimContext:
     def flow_speed(self) -> float:
         """Characteristic flow / impact speed [m/s]: ``sqrt(2 g L)`` (free fall over L)."""
         return math.sqrt(2.0 * self.gravity * self.length)
+
+    @property
+    def speed(self) -> float:
+        """Largest speed [m/s] the object meets: ``speed_met``, at least ``flow_speed``."""
+        return max(self.flow_speed, self.speed_met or 0.0)
+
+    @property
+    def thickness_or_length(self) -> float:
+        return self.thickness if self.thickness else self.length
+
+    @property
+    def frame_dt_or_default(self) -> float:
+        return self.frame_dt
+
+    @property
+    def run_time(self) -> float:
+        """Simulated time [s] (``duration``, or 2 s when unknown)."""
+        return self.duration if self.duration else 2.0
 
 
 # --- float / tensor neutral helpers -------------------------------------------------
@@ -308,32 +365,68 @@ def p_wave_modulus_factor(nu):
     return (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))
 
 
+def visible_stiffness(ctx: SimContext) -> float:
+    """``E_vis`` [Pa]: the stiffness above which every strain a viewer could see in this
+    scene stays below ``ctx.visible_strain`` (module docstring, "What can be seen").
+
+    The largest of: own weight and bending under gravity
+    (``rho g L / eps * max(1, 2 (L / t)^2)``: a round cantilever of length ``L`` and
+    thickness ``t`` sags ``2 rho g L^4 / (E t^2)``), the impact strain ``v / c_bar`` at
+    the largest speed the object meets, counted in proportion to how long the contact
+    lasts against a frame (:func:`visible_strains`), and the floor
+    ``rho (4 L / frame_dt)^2`` (an elastic wave crossing the object in a quarter of a
+    frame: vibrations faster than that are not resolved by the video).
+    """
+    eps = ctx.visible_strain
+    rho, L = ctx.density, ctx.length
+    t = min(ctx.thickness_or_length, L)
+    weight = rho * ctx.gravity * L / eps * max(1.0, 2.0 * (L / t) ** 2)
+    # impact: the bar wave speed c at which the impact strain (visible_strains) is eps
+    v_eps = ctx.speed / eps
+    c_impact = min(v_eps, math.sqrt(v_eps * 2.0 * L / ctx.frame_dt))
+    floor = 4.0 * L / ctx.frame_dt
+    return max(weight, rho * c_impact**2, rho * floor**2)
+
+
 def _E_bounds(cls: str, nu_sim, ctx: SimContext):
-    """(lo, hi, lo_sim, cap) of the log-affine stiffness map (cap may be a tensor)."""
-    ps = MATERIALS[cls].param("E")
-    lo, hi = ps.low, ps.high
-    cap_stable = ctx.density * ctx.c_max**2 / p_wave_modulus_factor(nu_sim)
-    cap = _minimum(cap_stable, hi)
-    own_weight = ctx.density * ctx.gravity * ctx.length / GRAVITY_STRAIN
-    lo_sim = _minimum(lo, _maximum(cap * (lo / hi), _minimum(own_weight, cap / MIN_CLASS_RATIO)))
-    return lo, hi, lo_sim, cap
+    """(knee, top, hi_eff) of the stiffness map: identity up to ``knee``, then ``log E``
+    affine from ``[log knee, log hi_eff]`` onto ``[log knee, log top]``.
+
+    ``cap = density c_max^2 / M(nu_sim)`` is the stiffest value the time step allows
+    (the budget); ``knee = min(E_vis, cap / BUDGET_RATIO)`` and
+    ``top = min(cap, ORDER_RATIO knee)``: stiffness that cannot be seen is compressed
+    to just above ``E_vis`` (order kept, cheap); where ``E_vis`` is above what the budget
+    allows, the knee is the budget's and the change is visible (:func:`visible_changes`).
+    ``hi_eff = max(class high, ORDER_RATIO^2 top)`` (knee, top may be tensors).
+    """
+    hi = MATERIALS[cls].param("E").high
+    # (1 - 1e-6: the CFL count of the top value must not round up past the budget)
+    cap = ctx.density * ctx.c_max**2 / p_wave_modulus_factor(nu_sim) * (1.0 - 1e-6)
+    knee = _minimum(visible_stiffness(ctx), cap / BUDGET_RATIO)
+    top = _minimum(cap, knee * ORDER_RATIO)
+    hi_eff = _maximum(hi, top * ORDER_RATIO**2)
+    return knee, top, hi_eff
 
 
 def _E_to_sim(cls, E, nu_sim, ctx):
-    lo, hi, lo_sim, cap = _E_bounds(cls, nu_sim, ctx)
-    t = (_log(E) - math.log(lo)) / (math.log(hi) - math.log(lo))
-    return _exp(_log(lo_sim) + t * (_log(cap) - _log(lo_sim)))
+    knee, top, hi_eff = _E_bounds(cls, nu_sim, ctx)
+    slope = (_log(top) - _log(knee)) / (_log(hi_eff) - _log(knee))
+    E_safe = _maximum(E, knee)  # the compressed branch is only taken above the knee
+    compressed = _exp(_log(knee) + (_log(E_safe) - _log(knee)) * slope)
+    return _where(E <= knee, E, compressed)
 
 
 def _E_from_sim(cls, E_sim, nu_sim, ctx):
-    lo, hi, lo_sim, cap = _E_bounds(cls, nu_sim, ctx)
-    t = (_log(E_sim) - _log(lo_sim)) / (_log(cap) - _log(lo_sim))
-    return _exp(math.log(lo) + t * (math.log(hi) - math.log(lo)))
+    knee, top, hi_eff = _E_bounds(cls, nu_sim, ctx)
+    slope = (_log(top) - _log(knee)) / (_log(hi_eff) - _log(knee))
+    E_safe = _maximum(E_sim, knee)
+    expanded = _exp(_log(knee) + (_log(E_safe) - _log(knee)) / slope)
+    return _where(E_sim <= knee, E_sim, expanded)
 
 
 def _kappa_scale(cls: str, ctx: SimContext) -> float:
     ps = MATERIALS[cls].param("kappa")
-    c_lo = MACH_FACTOR * ctx.flow_speed
+    c_lo = MACH_FACTOR * ctx.speed
     kappa_hi_sim = ctx.density * ctx.c_max**2
     if c_lo > 0:  # without gravity there is no flow-speed scale: use the stable maximum
         kappa_hi_sim = min(kappa_hi_sim, ctx.density * c_lo**2 * ps.high / ps.low)
@@ -342,24 +435,38 @@ def _kappa_scale(cls: str, ctx: SimContext) -> float:
     return kappa_hi_sim / ps.high
 
 
+def visible_viscosity(ctx: SimContext) -> float:
+    """``mu_vis`` [Pa s]: the viscosity above which a body's viscous flow moves it less than
+    ``visible_strain`` of its size over the run: ``rho L (g T + v) / eps`` (a blob of size
+    ``L`` flows at ``rho g L^2 / mu`` under its weight for ``T`` seconds; a velocity ``v``
+    imposed on it deforms it by ``rho v L / mu`` before viscosity stops it); at least
+    ``rho L^2 / T`` (viscous diffusion across the object within the run)."""
+    driven = ctx.density * ctx.length * (ctx.gravity * ctx.run_time + ctx.speed)
+    # floor (nothing drives a flow): viscous diffusion over the object in the run time
+    return max(driven / ctx.visible_strain, ctx.density * ctx.length**2 / ctx.run_time)
+
+
 def _mu_bounds(cls: str, ctx: SimContext):
+    """(knee, top, hi_eff) of the viscosity map (the stiffness map's rule, with the
+    explicit viscosity limit ``0.5 density dx^2 / (6 dt)`` as the budget's cap)."""
     hi = MATERIALS[cls].param("mu").high
-    cap = min(ctx.mu_max, hi)
-    knee = cap / MU_KNEE_FACTOR
-    return hi, cap, knee
+    cap = ctx.mu_max * (1.0 - 1e-6)
+    knee = min(visible_viscosity(ctx), cap / BUDGET_RATIO)
+    top = min(cap, knee * ORDER_RATIO)
+    return knee, top, max(hi, top * ORDER_RATIO**2)
 
 
 def _mu_to_sim(cls, mu, ctx):
-    hi, cap, knee = _mu_bounds(cls, ctx)
-    slope = (math.log(cap) - math.log(knee)) / (math.log(hi) - math.log(knee))
-    compressed = _exp(math.log(knee) + (_log(mu) - math.log(knee)) * slope)
+    knee, top, hi = _mu_bounds(cls, ctx)
+    slope = (math.log(top) - math.log(knee)) / (math.log(hi) - math.log(knee))
+    compressed = _exp(math.log(knee) + (_log(_maximum(mu, knee)) - math.log(knee)) * slope)
     return _where(mu <= knee, mu, compressed)
 
 
 def _mu_from_sim(cls, mu_sim, ctx):
-    hi, cap, knee = _mu_bounds(cls, ctx)
-    slope = (math.log(cap) - math.log(knee)) / (math.log(hi) - math.log(knee))
-    expanded = _exp(math.log(knee) + (_log(mu_sim) - math.log(knee)) / slope)
+    knee, top, hi = _mu_bounds(cls, ctx)
+    slope = (math.log(top) - math.log(knee)) / (math.log(hi) - math.log(knee))
+    expanded = _exp(math.log(knee) + (_log(_maximum(mu_sim, knee)) - math.log(knee)) / slope)
     return _where(mu_sim <= knee, mu_sim, expanded)
 
 
@@ -378,7 +485,7 @@ def _yield_factor(cls, E_sim, nu_sim, E, nu, ctx: SimContext):
 
 
 def _sand_E(ctx: SimContext) -> float:
-    c = min(ctx.c_max, MACH_FACTOR * ctx.flow_speed) if ctx.flow_speed > 0 else ctx.c_max
+    c = min(ctx.c_max, MACH_FACTOR * ctx.speed) if ctx.speed > 0 else ctx.c_max
     return ctx.density * c**2 / p_wave_modulus_factor(SAND_NU)
 
 
@@ -547,11 +654,8 @@ def impact_to_yield(sim_values: Mapping[str, Any], speed: float, density: Any = 
 SAG_LIMIT = 0.10
 METAL_SAG_LIMIT = 0.02
 RESPONSIBLE_FACTOR = 2.0
-MAX_AUTO_SUBSTEPS = 4096
-"""Cap of ``substeps: auto`` when it raises the count to keep the material's class."""
-AUTO_MAP_SUBSTEPS = 512
-"""``substeps: auto`` maps with ``dt = frame_dt / 512`` (CONTRACTS.md) unless the class
-rule needs more."""
+MAX_AUTO_SUBSTEPS = 2048
+"""Default budget of ``substeps: auto`` (``sim.max_substeps``): substeps per frame."""
 
 _LOOKS_LIKE = {
     "elastic": "slumps like jelly",
@@ -644,6 +748,106 @@ def class_violations(
 
 
 @dataclass(frozen=True)
+class VisibleChange:
+    """A simulated value a viewer can tell from the physical one (the budget forced it)."""
+
+    parameter: str
+    physical: float
+    simulated: float
+    measure: str
+    """What shows the change: ``impact squash``, ``sag``, ``viscous flow``."""
+    physical_strain: float
+    simulated_strain: float
+    text: str
+    """One line: the change, its consequence in numbers, and what to do."""
+
+
+_REMEDY = "use a coarser sim.grid, fewer particles or a larger sim.max_substeps"
+
+
+def visible_strains(cls: str, E: float, ctx: SimContext) -> dict[str, float]:
+    """Strains a viewer sees of a solid of stiffness ``E`` [Pa] in this scene:
+    ``sag`` (own weight and bending, ``rho g L / E max(1, 2 (L/t)^2)``) and ``impact``
+    (``v / c`` at the largest speed met, ``c = sqrt(E / rho)``, weighted by the share of
+    a frame the contact lasts, ``min(1, 2 L / (c frame_dt))``: a squash over in a
+    millisecond is not in the video)."""
+    cls = normalise_class(cls)
+    if cls not in _SOLIDS:
+        return {}
+    rho, L = ctx.density, ctx.length
+    t = min(ctx.thickness_or_length, L)
+    c = math.sqrt(E / rho)
+    return {
+        "sag": rho * ctx.gravity * L / E * max(1.0, 2.0 * (L / t) ** 2),
+        "impact": ctx.speed / c * min(1.0, 2.0 * L / (c * ctx.frame_dt)),
+    }
+
+
+def visible_changes(
+    params: MaterialParams, sim_values: Mapping[str, Any], ctx: SimContext
+) -> list[VisibleChange]:
+    """Where the simulated values look different from the physical ones in this scene.
+
+    Solids: the stiffness is simulated softer than asked and one of its visible strains
+    (:func:`visible_strains`) then exceeds both ``ctx.visible_strain`` and the physical
+    strain by more than ``visible_strain``. Fluids: the viscosity is simulated below
+    ``min(asked, mu_vis)`` (:func:`visible_viscosity`): the fluid flows visibly faster.
+    Empty when the map changed only what cannot be seen.
+    """
+    cls = params.cls
+    eps = ctx.visible_strain
+    out: list[VisibleChange] = []
+    if cls in _SOLIDS:
+        E, E_sim = float(params.values["E"]), float(sim_values["E"])
+        if E_sim >= E * (1 - 1e-9):
+            return out
+        phys, sim = visible_strains(cls, E, ctx), visible_strains(cls, E_sim, ctx)
+        worst = max(sim, key=lambda k: sim[k] - phys[k])
+        if sim[worst] > eps and sim[worst] - phys[worst] > eps:
+            words = {"sag": "sags", "impact": "impact squash"}[worst]
+            ratio = E / E_sim
+            out.append(
+                VisibleChange(
+                    "E",
+                    E,
+                    E_sim,
+                    worst,
+                    phys[worst],
+                    sim[worst],
+                    f"{cls} simulated {ratio:.3g}x softer than asked (E {E:.3g} -> "
+                    f"{E_sim:.3g} Pa): {words} {_pct(sim[worst])} of its size instead of "
+                    f"{_pct(phys[worst])}; {_REMEDY}",
+                )
+            )
+    elif cls in ("newtonian", "non_newtonian"):
+        mu = float(params.values["mu"])
+        key = "mu" if cls == "newtonian" else "eta"
+        mu_sim = float(sim_values[key])
+        if cls == "non_newtonian":
+            mu_sim /= float(nn_consistency_factor(float(sim_values.get("n", 1.0))))
+        mu_vis = visible_viscosity(ctx)
+        if mu_sim < min(mu, mu_vis) * (1 - 1e-6):
+            out.append(
+                VisibleChange(
+                    "mu",
+                    mu,
+                    mu_sim,
+                    "viscous flow",
+                    eps * mu_vis / mu,
+                    eps * mu_vis / mu_sim,
+                    f"{cls} simulated {mu / mu_sim:.3g}x less viscous than asked (mu "
+                    f"{mu:.3g} -> {mu_sim:.3g} Pa s): it flows up to {mu / mu_sim:.3g}x "
+                    f"faster; {_REMEDY}",
+                )
+            )
+    return out
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.2g} %" if x < 10 else "more than 1000 %"
+
+
+@dataclass(frozen=True)
 class SubstepPlan:
     """Substeps per frame for a run and the context its material was mapped with."""
 
@@ -659,7 +863,7 @@ class SubstepPlan:
     """What still makes the material leave its class (only when the auto cap binds)."""
 
 
-def _ctx(dx, frame_dt, n, density, length, gravity, yield_rule) -> SimContext:
+def _ctx(dx, frame_dt, n, density, length, gravity, yield_rule, scene=None) -> SimContext:
     return SimContext(
         dx=dx,
         dt=frame_dt / n,
@@ -667,7 +871,14 @@ def _ctx(dx, frame_dt, n, density, length, gravity, yield_rule) -> SimContext:
         length=length,
         gravity=gravity,
         yield_rule=yield_rule,
+        frame_dt=frame_dt,
+        **(scene or {}),
     )
+
+
+SCENE_KEYS = ("speed_met", "thickness", "duration", "visible_strain")
+"""The :class:`SimContext` fields that describe what the scene shows (``scene=`` of
+:func:`plan_substeps` and :func:`substeps_keeping_class`)."""
 
 
 def substeps_keeping_class(
@@ -680,6 +891,7 @@ def substeps_keeping_class(
     start: int = 1,
     cap: int = MAX_AUTO_SUBSTEPS,
     yield_rule: str = "auto",
+    scene: Mapping[str, Any] | None = None,
 ) -> int | None:
     """Smallest mapping substep count in ``[start, cap]`` that keeps the class; None above cap.
 
@@ -689,7 +901,7 @@ def substeps_keeping_class(
     rho = float(params.density)
 
     def ok(n: int) -> bool:
-        ctx = _ctx(dx, frame_dt, n, rho, length, gravity, yield_rule)
+        ctx = _ctx(dx, frame_dt, n, rho, length, gravity, yield_rule, scene)
         sim = {k: float(v) for k, v in physical_to_sim(params, ctx).items()}
         return not class_violations(params, sim, ctx)
 
@@ -719,40 +931,55 @@ def plan_substeps(
     yield_rule: str = "auto",
     cap: int = MAX_AUTO_SUBSTEPS,
     where: str = "sim.substeps",
+    scene: Mapping[str, Any] | None = None,
 ) -> SubstepPlan:
-    """Choose (``auto``) or check (a fixed count) the substeps of a run so the material
-    keeps its class (rule above).
+    """Choose (``auto``) or check (a fixed count) the substeps of a run.
 
-    ``auto``: map with ``dt = frame_dt / max(512, N_class)`` where ``N_class`` is the
-    smallest count that keeps the class (at most ``cap``; beyond it the cap is used and
-    a note says so), then run the CFL count of the mapped values (``cfl_substeps``:
-    ``(sim_values_with_class, dx, frame_dt) -> int``: the solver's ``auto_substeps``,
-    passed by the caller because materials/ must not import sim/): the mapping step, not the run's count, fixes the simulated
-    values, and the CFL count of those values keeps the run stable.
-    A fixed count that makes the material leave its class raises
-    :class:`~motionphysics.errors.UserInputError`: ``"sim.substeps: with substeps 5 this
-    metal is simulated with E = 1.6e+04 Pa ... ; use `substeps: auto` (N) or at least M"``.
+    ``scene``: what the scene shows (:data:`SCENE_KEYS`: the speed met, the slender
+    thickness, the run's duration), from which the map knows which stiffness and
+    viscosity can be seen (module docstring, "What can be seen").
+
+    ``auto``: the budget is ``cap`` substeps per frame: map with ``dt = frame_dt / cap``
+    (every visible value is simulated as asked when the budget allows it; invisible
+    stiffness is compressed to just above the visible threshold), then run the CFL
+    count of the mapped values (``cfl_substeps``: ``(sim_values_with_class, dx,
+    frame_dt) -> int``: the solver's ``auto_substeps``, passed by the caller because
+    materials/ must not import sim/). Where the budget forces a visible change, a
+    note (one line, with the consequence) says so.
+
+    A fixed count maps with ``dt = frame_dt / n``; one that makes the material leave its
+    class raises :class:`~motionphysics.errors.UserInputError` (``"sim.substeps: with
+    substeps 5 this metal is simulated with E = 1.6e+04 Pa ... ; use `substeps: auto`
+    (N) or at least M"``); a visible change within the class is a note.
     """
     from motionphysics.errors import UserInputError
 
     rho = float(params.density)
-    kw = dict(dx=dx, frame_dt=frame_dt, length=length, gravity=gravity, yield_rule=yield_rule)
+    kw = dict(
+        dx=dx,
+        frame_dt=frame_dt,
+        length=length,
+        gravity=gravity,
+        yield_rule=yield_rule,
+        scene=scene,
+    )
 
     def mapped(n: int):
-        ctx = _ctx(dx, frame_dt, n, rho, length, gravity, yield_rule)
+        ctx = _ctx(dx, frame_dt, n, rho, length, gravity, yield_rule, scene)
         return ctx, {k: float(v) for k, v in physical_to_sim(params, ctx).items()}
 
     def auto_plan() -> SubstepPlan:
-        need = substeps_keeping_class(params, start=AUTO_MAP_SUBSTEPS, cap=cap, **kw)
-        notes: list[str] = []
-        n_map = need if need is not None else max(cap, AUTO_MAP_SUBSTEPS)
+        n_map = max(1, int(cap))
         ctx, sim = mapped(n_map)
-        left = class_violations(params, sim, ctx) if need is None else []
+        left = class_violations(params, sim, ctx)
+        notes: list[str] = []
         if left:
             notes.append(
-                f"warning: {where}: auto is capped at {cap} substeps per frame and at the cap "
-                f"this {params.cls} {left[0].text}; use a coarser sim.grid or a smaller sim.frame_dt"
+                f"warning: {where}: auto is capped at {n_map} substeps per frame and at the "
+                f"cap this {params.cls} {left[0].text}; {_REMEDY}"
             )
+        else:
+            notes += [f"warning: {where}: {c.text}" for c in visible_changes(params, sim, ctx)]
         run_n = int(cfl_substeps({"class": params.cls, **sim}, dx, frame_dt))
         return SubstepPlan(max(1, run_n), ctx, sim, notes, left)
 
@@ -762,7 +989,12 @@ def plan_substeps(
     ctx, sim = mapped(n)
     bad = class_violations(params, sim, ctx)
     if not bad:
-        return SubstepPlan(n, ctx, sim, [], [])
+        notes = [
+            f"warning: {where}: with substeps {n} the {c.text.replace(_REMEDY, '')}"
+            f"`substeps: auto` ({auto_plan().substeps}) simulates it as asked"
+            for c in visible_changes(params, sim, ctx)
+        ]
+        return SubstepPlan(n, ctx, sim, notes, [])
     least = substeps_keeping_class(params, start=n, cap=cap, **kw)
     auto = auto_plan()
     need = f"at least {least}" if least is not None else f"more than {cap} (or a coarser sim.grid)"
@@ -836,17 +1068,29 @@ def sim_quantities(cls: str, sim_values: Mapping[str, Any]) -> list[dict[str, An
 
 
 def mapped_substitutions(
-    params: MaterialParams, sim_values: Mapping[str, Any], rel_tol: float = 1e-6
+    params: MaterialParams,
+    sim_values: Mapping[str, Any],
+    rel_tol: float = 1e-6,
+    ctx: SimContext | None = None,
 ) -> list[Any]:
     """:class:`~motionphysics.materials.catalog.Clamp` records (kind ``mapped to
     simulation``) for each parameter whose simulated value differs from the physical one
-    (same quantity only: rows of :func:`sim_quantities` with ``pairs_with``)."""
+    (same quantity only: rows of :func:`sim_quantities` with ``pairs_with``).
+
+    With ``ctx``: only the differences a viewer can see (:func:`visible_changes`); a
+    change that cannot be seen is not a substitution (``params.json`` keeps both values
+    under ``simulation``)."""
     from motionphysics.materials.catalog import Clamp
 
+    shown = None
+    if ctx is not None:
+        shown = {c.parameter for c in visible_changes(params, sim_values, ctx)}
     out = []
     for row in sim_quantities(params.cls, sim_values):
         name = row["pairs_with"]
         if name is None or name not in params.values:
+            continue
+        if shown is not None and name not in shown:
             continue
         phys = float(params.values[name])
         if abs(row["value"] - phys) > rel_tol * max(abs(phys), 1e-30):
