@@ -145,6 +145,14 @@ class MaterialConfig(_Strict):
         return out
 
 
+class InitConfig(_Strict):
+    """How the material is estimated from the prompt."""
+
+    ranges: Literal["extended", "paper"] = "extended"
+    """Range table the estimates are clamped into: ``extended`` (gels to oozing fluids, see
+    ``materials.catalog``) or ``paper`` (the paper's table exactly, for its ablation)."""
+
+
 class SimConfig(_Strict):
     domain: Box | None = None
     """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` [m]; null: fitted around the scene."""
@@ -492,6 +500,8 @@ class RunConfig(_Strict):
     prompt: str = "An elastic ball hits the ground and bounces back."
     """Text prompt: the material is estimated from it, a prior is guided by it."""
     material: MaterialConfig = MaterialConfig()
+    init: InitConfig = InitConfig()
+    """Material estimation: ``ranges`` (``extended`` or ``paper``)."""
     sim: SimConfig = SimConfig()
     boundary_conditions: list[BoundaryCondition] = []
     forces: list[Force] = []

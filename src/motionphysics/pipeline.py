@@ -111,6 +111,7 @@ def run_pipeline(
     RunInterrupted (the directory then holds a consistent partial run).
     """
     from motionphysics.init import INIT_BACKENDS
+    from motionphysics.materials.catalog import use_ranges
     from motionphysics.runtime import check_device, set_threads
 
     if init_backend not in INIT_BACKENDS:
@@ -138,7 +139,8 @@ def run_pipeline(
     _seed_everything(seed)
     writer.begin(cfg, seed=seed, device=device)
     cfg_in = cfg  # the camera as the person wrote it (auto-framing is redone on the trajectory)
-    with writer.guard():
+    # init.ranges: the range table the estimates (and the refinement's bounds) use
+    with writer.guard(), use_ranges(cfg.init.ranges):
         base = read_params_file(params_file) if params_file is not None else None
         parts = assemble(
             cfg,

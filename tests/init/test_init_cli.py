@@ -29,11 +29,26 @@ def test_init_json_schema(capsys):
     for k in MATERIALS["elastic"].names:
         assert spec("elastic", k).contains(mat[k])
     assert d["backend"] == "kb" and d["raw_answer"] is None
-    # Rubber's real E (~3e6 Pa) lies below the elastic floor: reported, never hidden.
-    (c,) = d["clamped"]
-    assert c["field"] == "E" and c["kind"] == "range floor" and c["clamped"] == mat["E"]
-    assert c["original"] < c["clamped"] and d["matched"] == "rubber duck"
+    # The extended table holds rubber's real E (3e6 Pa): used as it is, nothing clamped.
+    assert mat["E"] == 3e6 and d["clamped"] == [] and d["ranges"] == "extended"
+    assert d["matched"] == "rubber duck" and d["adjusted"] == []
     assert 0 < d["confidence"] <= 1 and d["matches"][0]["name"] == "rubber duck"
+
+
+def test_init_paper_ranges_clamp_as_the_paper_did(capsys):
+    rc, out, _ = _run(
+        ["init", "A rubber duck hits the ground and bounces back", "--json", "--ranges", "paper"],
+        capsys,
+    )
+    d = json.loads(out)
+    assert rc == 0 and d["ranges"] == "paper" and d["material"]["E"] == 1e7
+    # Rubber's real E (3e6 Pa) lies below the paper's elastic floor: reported, never hidden.
+    (c,) = d["clamped"]
+    assert c["field"] == "E" and c["kind"] == "range floor" and c["clamped"] == 1e7
+    assert c["original"] == 3e6
+    with pytest.raises(SystemExit) as exc:
+        main(["init", "A rubber duck", "--ranges", "cheese"])
+    assert exc.value.code == 2 and "--ranges" in capsys.readouterr().err
 
 
 def test_init_table(capsys):
@@ -64,7 +79,13 @@ def test_init_median_backend(capsys):
     )
     d = json.loads(out)
     assert rc == 0 and d["backend"] == "median" and d["material"]["class"] == "metal"
-    assert d["material"]["E"] == pytest.approx((4.5e10 + 4e11) / 2)
+    assert d["material"]["E"] == pytest.approx((1e10 + 4e11) / 2)  # the extended range
+    rc, out, _ = _run(
+        ["init", "An axe is hitting the ground.", "--backend", "median", "--ranges", "paper"]
+        + ["--json"],
+        capsys,
+    )
+    assert json.loads(out)["material"]["E"] == pytest.approx((4.5e10 + 4e11) / 2)
 
 
 @pytest.mark.parametrize(

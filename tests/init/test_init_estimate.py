@@ -12,7 +12,7 @@ from motionphysics.errors import UserInputError
 from motionphysics.init import EstimateOptions, MaterialEstimate, estimate
 from motionphysics.init.baselines import median_params, median_value
 from motionphysics.init.estimate import check_prompt, load_image_png
-from motionphysics.materials.catalog import DENSITY, MATERIALS, Clamp
+from motionphysics.materials.catalog import DENSITY, Clamp, materials
 
 
 @pytest.mark.parametrize(
@@ -59,21 +59,29 @@ def test_image_inputs_become_png(tmp_path):
 
 
 def test_median_backend_arithmetic_and_geometric():
-    est = estimate("whatever", backend="median", options=EstimateOptions(cls="Elastic"))
-    assert est.cls == "elastic" and est.backend == "median"
-    # the paper's ablation value: E = 2e11 Pa for the elastic range 1e7 - 4e11
-    assert est.values["E"] == pytest.approx(2.00005e11)
+    est = estimate(
+        "whatever", backend="median", options=EstimateOptions(cls="Elastic", ranges="paper")
+    )
+    assert est.cls == "elastic" and est.backend == "median" and est.ranges == "paper"
+    # the paper's ablation value: E = 2e11 Pa for the paper's elastic range 1e7 - 4e11
+    assert est.values["E"] == pytest.approx(2.00005e11, rel=1e-12)
     assert est.values["nu"] == pytest.approx(0.3)
     assert est.density == pytest.approx((10 + 2.3e4) / 2)
-    geo = median_params("elastic", "geometric")
+    geo = median_params("elastic", "geometric", "paper")
     assert geo.values["E"] == pytest.approx(math.sqrt(1e7 * 4e11))
     assert geo.values["nu"] == pytest.approx(0.3)  # linear parameters: midpoint either way
-    for cls, mc in MATERIALS.items():
-        for kind in ("arithmetic", "geometric"):
-            p = median_params(cls, kind)
-            assert DENSITY.contains(p.density)
-            for ps in mc.params:
-                assert ps.contains(p.values[ps.name])
+    # the extended table (the default) reaches down to gels: 1e3 - 4e11
+    ext = estimate("whatever", backend="median", options=EstimateOptions(cls="elastic"))
+    assert ext.ranges == "extended"
+    assert ext.values["E"] == pytest.approx((1e3 + 4e11) / 2, rel=1e-12)
+    assert median_params("elastic", "geometric").values["E"] == pytest.approx(math.sqrt(1e3 * 4e11))
+    for table in ("extended", "paper"):
+        for cls, mc in materials(table).items():
+            for kind in ("arithmetic", "geometric"):
+                p = median_params(cls, kind, table)
+                assert DENSITY.contains(p.density)
+                for ps in mc.params:
+                    assert ps.contains(p.values[ps.name])
     with pytest.raises(ValueError):
         median_value(DENSITY, "mode")
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from motionphysics.config import MATERIAL_CLASSES
-from motionphysics.init import estimate_many
+from motionphysics.init import EstimateOptions, estimate_many
 from motionphysics.init.kb import (
     PACKAGED_EMBEDDINGS,
     KBMatcher,
@@ -250,11 +250,22 @@ def test_english_prompts_are_not_flagged_non_english():
 
 
 def test_real_values_outside_the_class_are_reported(matcher):
+    # The extended table holds tofu's real E (3e4 Pa): used as it is.
     (est,) = estimate_many(["A block of tofu is dropped."], backend="kb")
+    assert est.values["E"] == 3e4 and est.clamped == [] and not est.notes
+    # The paper's table does not (its elastic floor is 1e7 Pa): a substitution, reported.
+    (est,) = estimate_many(
+        ["A block of tofu is dropped."], backend="kb", options=EstimateOptions(ranges="paper")
+    )
     (c,) = est.clamped
-    assert c.kind == "range floor" and c.field == "E" and c.original < c.clamped
+    assert c.kind == "range floor" and c.field == "E" and (c.original, c.clamped) == (3e4, 1e7)
     # a hint, not a warning: the substitution is listed in the clamps and the summary
     assert any("real E of tofu" in n for n in est.notes) and not est.warnings
+    # A real value outside even the extended range (tungsten's E above 4e11 Pa) is
+    # reported in either table.
+    (est,) = estimate_many(["A tungsten cube falls."], backend="kb")
+    (c,) = est.clamped
+    assert c.field == "E" and c.kind == "clamped" and (c.original, c.clamped) == (4.07e11, 4e11)
 
 
 def test_extended_prompt_set_entries(matcher):

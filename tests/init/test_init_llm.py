@@ -11,6 +11,7 @@ import base64
 import json
 import threading
 import time
+from dataclasses import replace
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
@@ -125,10 +126,31 @@ def test_good_answer():
     req = srv.requests[0]
     assert req["model"] == "test-model"
     text = _user_text(req)
-    assert "An axe is hitting the ground." in text and "4.5e10 - 4e11 Pa" in text
+    # the extended table (the default) with the metal range reaching down to lead
+    assert "An axe is hitting the ground." in text and "E: 1e10 - 4e11 Pa" in text
+    assert "do not change the type" in text
     # the key travels in the Authorization header and nowhere in the estimate
     assert srv.headers[0]["authorization"] == f"Bearer {SECRET}"
     assert SECRET not in est.to_json()
+
+
+def test_range_table_of_the_inquiry_and_the_clamps():
+    jelly = json.dumps({"material_type": "elastic", "density": 1050, "E": 5e3, "nu": 0.45})
+    with FakeChatServer([jelly]) as srv:
+        est = estimate("A wobbly jelly cube.", backend="llm", options=_opts(srv))
+    assert est.values["E"] == 5e3 and est.clamped == [] and est.ranges == "extended"
+    assert "E: 1e3 - 4e11 Pa" in _user_text(srv.requests[0])
+    # init.ranges: paper asks with the paper's table and clamps as the paper did
+    with FakeChatServer([jelly]) as srv:
+        est = estimate(
+            "A wobbly jelly cube.",
+            backend="llm",
+            options=replace(_opts(srv), ranges="paper"),
+        )
+    text = _user_text(srv.requests[0])
+    assert "E: 1e7 - 4e11 Pa" in text and "E: 4.5e10 - 4e11 Pa" in text
+    assert "do not change the type" not in text  # the paper's template
+    assert est.values["E"] == 1e7 and est.clamped == [Clamp("E", 5e3, 1e7, "clamped", "llm")]
 
 
 def test_answer_in_code_fence_with_text_around():
@@ -261,7 +283,7 @@ def test_naive_backend_asks_without_ranges_and_clamps():
     with FakeChatServer([reply]) as srv:
         est = estimate("An axe.", backend="naive", options=_opts(srv))
     text = _user_text(srv.requests[0])
-    assert "valid ranges" not in text and "4.5e10" not in text
+    assert "valid ranges" not in text and "4.5e10" not in text and "1e10 - 4e11" not in text
     assert est.backend == "naive" and est.clamped == [Clamp("E", 2e12, 4e11, "clamped", "naive")]
 
 

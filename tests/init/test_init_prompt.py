@@ -5,7 +5,7 @@ from __future__ import annotations
 import base64
 
 from motionphysics.init.prompt import build_messages, build_prompt
-from motionphysics.materials.catalog import DENSITY, MATERIALS
+from motionphysics.materials.catalog import DENSITY, materials, use_ranges
 
 # The appendix table's ranges as they must read in the prompt (SI units).
 PAPER_RANGES = [
@@ -31,15 +31,41 @@ PAPER_RANGES = [
 ]
 
 
+# The extended table (the default) where it widens the paper's.
+EXTENDED_RANGES = [
+    "E: 1e3 - 4e11 Pa",  # elastic: down to gels
+    "E: 1e5 - 1e8 Pa",
+    "tau_Y: 1e3 - 1e6 Pa",  # plasticine
+    "E: 1e10 - 4e11 Pa",
+    "nu: 0.25 - 0.45",
+    "tau_Y: 1e6 - 2e9 Pa",  # metal
+    "E: 1e3 - 1e8 Pa",  # foam
+    "theta_fric: 20 - 50 deg",  # sand
+    "mu: 1e-4 - 1e4 Pa s",  # newtonian: oozing at tens of centimetres
+    "mu: 1e-3 - 1e4 Pa s",
+    "tau_Y: 1 - 1e4 Pa",
+    "n: 0.2 - 1",  # non-newtonian
+    "10 - 2.3e4 kg/m^3",  # density
+]
+
+
 def test_ranged_prompt_contains_every_range_of_the_table():
-    text = build_prompt("An axe is hitting the ground.")
-    for r in PAPER_RANGES:
-        assert r in text, r
-    for cls, mc in MATERIALS.items():
-        assert f'("{cls}")' in text
-        for ps in mc.params:
-            assert f"{ps.name}: {ps.range_text()}" in text
-    assert DENSITY.range_text() in text
+    for table, expected in (("paper", PAPER_RANGES), ("extended", EXTENDED_RANGES)):
+        text = build_prompt("An axe is hitting the ground.", table=table)
+        for r in expected:
+            assert r in text, (table, r)
+        for cls, mc in materials(table).items():
+            assert f'("{cls}")' in text
+            for ps in mc.params:
+                assert f"{ps.name}: {ps.range_text()}" in text
+        assert DENSITY.range_text() in text
+    # the default is the extended table, which also says what modifiers do
+    default = build_prompt("An axe is hitting the ground.")
+    assert default == build_prompt("An axe is hitting the ground.", table="extended")
+    assert "E: 1e3 - 4e11 Pa" in default and "do not change the type" in default
+    with use_ranges("paper"):  # a run with init.ranges: paper
+        assert "E: 1e7 - 4e11 Pa" in build_prompt("An axe.")
+        assert "do not change the type" not in build_prompt("An axe.")
 
 
 def test_prompt_structure_follows_the_paper():

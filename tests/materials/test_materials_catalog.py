@@ -9,13 +9,22 @@ import pytest
 from motionphysics.config import MATERIAL_CLASSES
 from motionphysics.errors import UserInputError
 from motionphysics.materials.catalog import (
+    DEFAULT_RANGES,
     DENSITY,
     MATERIALS,
+    PAPER_MATERIALS,
+    RANGE_TABLES,
     SOURCES,
     Clamp,
+    active_ranges,
+    check_ranges,
     class_id,
+    materials,
     normalise_class,
     param_names,
+    ranges,
+    spec,
+    use_ranges,
     validate,
 )
 
@@ -37,18 +46,65 @@ PAPER_TABLE = {
 }
 
 
-def test_catalogue_matches_the_paper_table():
-    assert tuple(MATERIALS) == MATERIAL_CLASSES
-    for cls, params in PAPER_TABLE.items():
+# The extended table (the default): the paper's ranges widened where they leave out what
+# people name at the sizes they simulate (see catalog._EXTENSIONS for each reason).
+EXTENDED_TABLE = {
+    "elastic": {"E": (1e3, 4e11), "nu": (0.1, 0.5)},
+    "plasticine": {"E": (1e5, 1e8), "nu": (0.3, 0.4), "tau_Y": (1e3, 1e6)},
+    "metal": {"E": (1e10, 4.0e11), "nu": (0.25, 0.45), "tau_Y": (1e6, 2e9)},
+    "foam": {"E": (1e3, 1e8), "nu": (0.0, 0.3), "tau_Y": (1e3, 1e6), "eta": (0.1, 1.0)},
+    "sand": {"theta_fric": (20.0, 50.0)},
+    "newtonian": {"mu": (1e-4, 1e4), "kappa": (1e9, 5e9)},
+    "non_newtonian": {
+        "mu": (1e-3, 1e4),
+        "kappa": (1e9, 5e9),
+        "tau_Y": (1.0, 1e4),
+        "eta": (0.1, 1.0),
+        "n": (0.2, 1.0),
+    },
+}
+
+
+@pytest.mark.parametrize(
+    "table, expected, classes",
+    [("paper", PAPER_TABLE, PAPER_MATERIALS), ("extended", EXTENDED_TABLE, MATERIALS)],
+)
+def test_catalogue_matches_the_paper_table(table, expected, classes):
+    assert tuple(classes) == MATERIAL_CLASSES
+    assert materials(table) is classes
+    for cls, params in expected.items():
         assert param_names(cls) == tuple(params), cls
         for name, (lo, hi) in params.items():
-            ps = MATERIALS[cls].param(name)
+            ps = classes[cls].param(name)
             assert (ps.low, ps.high) == (lo, hi), (cls, name)
+            assert ranges(cls, table).param(name) == ps
+            assert spec(cls, name, table) == ps
             assert ps.source in SOURCES
             assert ps.scale in ("log", "linear")
     assert (DENSITY.low, DENSITY.high) == (10.0, 2.3e4)
-    assert MATERIALS["non_newtonian"].param("n").default == 1.0
+    assert classes["non_newtonian"].param("n").default == 1.0
     assert [class_id(c) for c in MATERIAL_CLASSES] == list(range(7))
+
+
+def test_range_tables_default_accessor_and_context():
+    assert DEFAULT_RANGES == "extended" and RANGE_TABLES == ("extended", "paper")
+    assert active_ranges() == "extended" and spec("elastic", "E").low == 1e3
+    assert ranges("Elastic", "paper").param("E").low == 1e7
+    with use_ranges("paper"):
+        assert active_ranges() == "paper" and spec("elastic", "E").low == 1e7
+        with use_ranges("extended"):
+            assert ranges("jelly").param("E").low == 1e3  # aliases accepted
+        with use_ranges(None):  # None leaves the active table as it is
+            assert active_ranges() == "paper"
+        p, clamps = validate("elastic", {"E": 5e3, "nu": 0.45}, density=1050)
+        assert p.values["E"] == 1e7 and clamps == [Clamp("E", 5e3, 1e7)]
+    assert active_ranges() == "extended"
+    p, clamps = validate("elastic", {"E": 5e3, "nu": 0.45}, density=1050)
+    assert p.values["E"] == 5e3 and clamps == []
+    with pytest.raises(UserInputError, match=r"init\.ranges: expected one of extended, paper"):
+        check_ranges("handbook")
+    with pytest.raises(UserInputError):
+        ranges("elastic", "handbook")
 
 
 @pytest.mark.parametrize(

@@ -84,11 +84,17 @@ def test_limits_admit_the_whole_handbook():
 
 
 def test_written_values_used_as_written_with_one_warning():
+    # 1e6 Pa (soft rubber) lies in the extended elastic range, below the paper's
     res = resolve_material("elastic", {"E": 1.0e6, "nu": 0.3, "density": 1000.0})
+    assert res["material"].values["E"] == 1.0e6 and res["warnings"] == []
+    res = resolve_material("elastic", {"E": 1.0e6, "nu": 0.3, "density": 1000.0}, ranges="paper")
     assert res["material"].values["E"] == 1.0e6
     assert res["clamps"] == []
     assert len(res["warnings"]) == 1 and "material.E" in res["warnings"][0]
     assert "used as written" in res["warnings"][0] and res["sources"]["E"] == "config"
+    assert "(1e7 - 4e11 Pa)" in res["warnings"][0]
+    res = resolve_material("elastic", {"E": 200.0, "nu": 0.3, "density": 1000.0})
+    assert res["material"].values["E"] == 200.0 and "(1e3 - 4e11 Pa)" in res["warnings"][0]
     foam = resolve_material(
         "foam", {"E": 1.0e3, "tau_Y": 100.0, "nu": 0.2, "eta": 0.5, "density": 30.0}
     )
@@ -103,10 +109,15 @@ def test_estimates_stay_clamped_and_tagged():
         "backend": "llm",
         "clamps": [],
     }
-    res = resolve_material(None, {}, estimate=est)
+    res = resolve_material(None, {}, estimate=est, ranges="paper")
     assert res["material"].values["E"] == 1.0e7
     (c,) = res["clamps"]
     assert c["kind"] == "clamped" and c["source"] == "llm" and c["original"] == 5.0e5
+    # the extended table (the default) holds 5e5 Pa; below its floor an estimate is clamped
+    assert resolve_material(None, {}, estimate=est)["clamps"] == []
+    est_gel = {**est, "params": {"E": 50.0, "nu": 0.45}}
+    (c,) = resolve_material(None, {}, estimate=est_gel)["clamps"]
+    assert (c["original"], c["clamped"], c["kind"]) == (50.0, 1e3, "clamped")
     # A backend's own floor substitution keeps its tag.
     est2 = {
         **est,

@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motionphysics.materials.catalog import MATERIALS, spec
+from motionphysics.materials.catalog import MATERIALS, spec, use_ranges
 from motionphysics.materials.theta import Parameterisation
 
 CLASSES = list(MATERIALS)
@@ -77,6 +77,10 @@ def test_names_subset_density_and_errors():
     par = Parameterisation("Metal", ["E", "density"])
     assert par.names == ("E", "density") and len(par) == 2
     lo, hi = par.bounds()
+    # the extended table (the default) reaches down to lead's E
+    assert lo.tolist() == [1e10, 10.0] and hi.tolist() == [4e11, 2.3e4]
+    with use_ranges("paper"):  # a run with init.ranges: paper refines within the paper's
+        lo, hi = Parameterisation("Metal", ["E", "density"]).bounds()
     assert lo.tolist() == [4.5e10, 10.0] and hi.tolist() == [4e11, 2.3e4]
     with pytest.raises(ValueError):
         Parameterisation("metal", ["mu"])

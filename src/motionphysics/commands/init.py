@@ -1,11 +1,15 @@
 """``motionphysics init``: estimate a material from a prompt and print it.
 
     motionphysics init "PROMPT" [--image PNG] [--backend kb|llm|median|naive] [--json]
+                       [--ranges extended|paper]
     motionphysics init --from FILE [--backend ...]      one JSON line per prompt, in order
 
 With ``--json`` one JSON object: ``material`` (``class``, ``density`` and the class's
 parameters, SI), ``backend``, ``confidence``, ``clamped``, ``raw_answer`` (llm),
-``matches``, ``matched`` and ``warnings`` (kb). Without it a short table. Warnings
+``matches``, ``matched``, ``warnings`` and ``adjusted`` (kb: values moved by modifiers
+such as "soft" or "runny"), ``ranges`` (the range table). Without it a short table.
+``--ranges paper`` clamps into the paper's table (its ablation) instead of the extended
+one (the default; a run config's ``init.ranges``). Warnings
 (a low-confidence kb match, a non-English prompt) go to stderr, also with ``--quiet``. Bad input (empty or over-long prompt,
 non-UTF-8 ``--from`` file, unreadable image, unknown backend) exits with status 2.
 """
@@ -45,6 +49,13 @@ def register(subparsers) -> None:
         "model with ranges; median: range medians; naive: LLM without ranges",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument(
+        "--ranges",
+        choices=["extended", "paper"],
+        default="extended",
+        help="range table estimates are clamped into: extended (default; gels to oozing "
+        "fluids) or paper (the paper's table, for its ablation); a run config's init.ranges",
+    )
     p.add_argument(
         "--class",
         dest="cls",
@@ -134,9 +145,10 @@ def read_prompt_file(path: str) -> list[str]:
 
 
 def _table(est) -> str:
-    from motionphysics.materials.catalog import MATERIALS, spec
+    from motionphysics.materials.catalog import ranges, spec
 
-    mc = MATERIALS[est.cls]
+    table = getattr(est, "ranges", None)
+    mc = ranges(est.cls, table)
     rows = [
         f"material  {mc.label} ({est.cls})",
         f"backend   {est.backend}"
@@ -145,10 +157,14 @@ def _table(est) -> str:
     ]
     rows.append(f"  {'density':<10} {est.density:>12.4g} {'kg/m^3':<6}")
     for name in mc.names:
-        unit = spec(est.cls, name).unit
+        unit = spec(est.cls, name, table).unit
         rows.append(
             f"  {name:<10} {est.values[name]:>12.4g} {'' if unit == '1' else unit:<6}"
-            f"   range {spec(est.cls, name).range_text()}"
+            f"   range {spec(est.cls, name, table).range_text()}"
+        )
+    for a in getattr(est, "adjusted", []):
+        rows.append(
+            f"  adjusted {a['field']}: {a['from']:.4g} -> {a['to']:.4g} ({', '.join(a['words'])})"
         )
     for c in est.clamped:
         rows.append(f"  {c.kind} {c.field}: {c.original:.4g} -> {c.clamped:.4g}")
@@ -157,6 +173,7 @@ def _table(est) -> str:
         rows.append(f"matches   {top}")
     if est.source:
         rows.append(f"source    {est.source}")
+    rows.append(f"ranges    {table}")
     return "\n".join(rows)
 
 
@@ -179,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
         cls=args.cls,
         announce=not getattr(args, "quiet", False),
         verbose=bool(getattr(args, "verbose", False)),
+        ranges=args.ranges,
     )
     estimates = estimate_many(prompts, args.image, args.backend, options)
     # Warnings about the material are never hidden, --quiet included.

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from motionphysics.materials.catalog import DENSITY, MATERIALS, MaterialParams, ParamSpec
+from motionphysics.materials.catalog import DENSITY, MaterialParams, ParamSpec, ranges
 
 __all__ = ["median_value", "median_params"]
 
@@ -35,8 +35,12 @@ def median_value(ps: ParamSpec, kind: MedianKind = "arithmetic") -> float:
     return 0.5 * (ps.low + ps.high)
 
 
-def median_params(cls: str, kind: MedianKind = "arithmetic") -> MaterialParams:
-    """Every parameter of ``cls`` (and the density) at the median of its range."""
-    mc = MATERIALS[cls]
+def median_params(
+    cls: str, kind: MedianKind = "arithmetic", table: str | None = None
+) -> MaterialParams:
+    """Every parameter of ``cls`` (and the density) at the median of its range in range
+    table ``table`` (``extended``, ``paper``; None: the active one). The paper's ablation
+    values (E = 2e11 Pa for elastic) come from ``table="paper"``."""
+    mc = ranges(cls, table)
     values = {ps.name: median_value(ps, kind) for ps in mc.params}
     return MaterialParams(cls, median_value(DENSITY, kind), values)

@@ -4,7 +4,10 @@ Backends: ``kb`` (offline default: the curated knowledge base and MiniLM),
 ``llm`` (OpenAI-compatible chat model with the paper's ranged prompt), ``median``
 and ``naive`` (the paper's ablation baselines). Every backend returns a
 :class:`MaterialEstimate` whose values are physical (SI), inside the class ranges,
-with every clamp recorded. Inputs are checked here (prompt text, image) and bad
+with every clamp recorded. Which ranges bound them is the range table
+(``EstimateOptions.ranges``: ``extended``, the default, or ``paper``, the paper's
+appendix table for its ablation; None: the active table of
+:func:`motionphysics.materials.catalog.use_ranges`). Inputs are checked here (prompt text, image) and bad
 ones raise :class:`~motionphysics.errors.UserInputError` with one line.
 """
 
@@ -19,7 +22,15 @@ from typing import Any, Literal
 from motionphysics.errors import UserInputError
 from motionphysics.init.baselines import MedianKind, median_params
 from motionphysics.init.llm import LLMOptions, ask_material
-from motionphysics.materials.catalog import MATERIALS, Clamp, MaterialParams, normalise_class
+from motionphysics.materials.catalog import (
+    MATERIALS,
+    Clamp,
+    MaterialParams,
+    active_ranges,
+    check_ranges,
+    normalise_class,
+    spec,
+)
 
 __all__ = [
     "BACKENDS",
@@ -57,6 +68,10 @@ class EstimateOptions:
     request is being waited for (on a terminal)."""
     verbose: bool = False
     """Also write the LLM waiting line when stderr is not a terminal."""
+    ranges: str | None = None
+    """The range table estimates are clamped into and the LLM is asked with: ``extended``
+    or ``paper`` (the paper's table exactly); None: the active one (``extended`` unless a
+    run set its config's ``init.ranges``)."""
 
 
 @dataclass(frozen=True)
@@ -85,6 +100,11 @@ class MaterialEstimate:
     """Hints about substitutions already listed in ``clamped`` (kb: the entry's real value
     lies outside the class range, and how to simulate it anyway); ``init`` prints them,
     a run lists the substitutions in its summary instead."""
+    adjusted: list[dict[str, Any]] = field(default_factory=list)
+    """kb: values the prompt's modifiers moved ("soft": E 1.5e7 -> 1.7e6), each
+    ``{"field", "from", "to", "words"}`` (before any clamp)."""
+    ranges: str = "extended"
+    """The range table the values were clamped into (``extended`` or ``paper``)."""
 
     @property
     def params(self) -> MaterialParams:
@@ -110,6 +130,8 @@ class MaterialEstimate:
             "matched": self.matched,
             "warnings": list(self.warnings),
             "notes": list(self.notes),
+            "adjusted": [dict(a) for a in self.adjusted],
+            "ranges": self.ranges,
         }
 
     def to_json(self, indent: int | None = None) -> str:
@@ -182,15 +204,26 @@ def _check_backend(backend: str) -> str:
     return backend
 
 
-def _from_kb(match, prompt: str) -> MaterialEstimate:
+def _from_kb(match, prompt: str, table: str) -> MaterialEstimate:
+    from motionphysics.init.kb import apply_modifiers
+
     e = match.entry
-    # Handbook values outside the class range were set to the floor / ceiling when the
-    # kb was written: report them as substitutions, never as the material's own values.
+    # The entry's real values (``real`` holds those outside even the extended range),
+    # moved by the prompt's modifiers ("soft", "runny"), then clamped into the range
+    # table: every value that is not the material's own is reported as a substitution.
+    real = {**e.values, **{k: v for k, v in e.real.items() if k != "density"}}
+    real, adjusted = apply_modifiers(match.cls, real, getattr(match, "modifiers", []))
+    rho_real = float(e.real.get("density", e.density))
     clamped = []
-    for k, real in e.real.items():
-        used = e.density if k == "density" else e.values[k]
-        kind = "range floor" if real < used else "clamped"
-        clamped.append(Clamp(k, float(real), float(used), kind, "kb"))
+    values: dict[str, float] = {}
+    for k, x in (("density", rho_real), *real.items()):
+        ps = spec(match.cls, k, table)
+        used = ps.clip(float(x))
+        if used != x:
+            kind = "range floor" if x < used else "clamped"
+            clamped.append(Clamp(k, float(x), float(used), kind, "kb"))
+        values[k] = used
+    density = values.pop("density")
     warnings = list(getattr(match, "warnings", []))
     notes = []
     for c in clamped:
@@ -203,8 +236,8 @@ def _from_kb(match, prompt: str) -> MaterialEstimate:
             )
     return MaterialEstimate(
         cls=match.cls,
-        density=e.density,
-        values=dict(e.values),
+        density=density,
+        values=values,
         backend="kb",
         confidence=round(match.confidence, 4),
         clamped=clamped,
@@ -215,6 +248,8 @@ def _from_kb(match, prompt: str) -> MaterialEstimate:
         matched=getattr(match, "matched", None),
         warnings=warnings,
         notes=notes,
+        adjusted=adjusted,
+        ranges=table,
     )
 
 
@@ -237,13 +272,16 @@ def estimate_many(
     """Estimate several prompts in order (the kb model and embeddings load once)."""
     opts = options or EstimateOptions()
     backend = _check_backend(backend)
+    table = check_ranges(opts.ranges if opts.ranges is not None else active_ranges(), "--ranges")
     texts = [check_prompt(p) for p in prompts]
     png = load_image_png(image) if image is not None else None
     if backend == "kb":
         from motionphysics.init.kb import get_matcher
 
         matcher = get_matcher(announce=opts.announce)
-        return [_from_kb(m, p) for m, p in zip(matcher.match_many(texts), texts, strict=True)]
+        return [
+            _from_kb(m, p, table) for m, p in zip(matcher.match_many(texts), texts, strict=True)
+        ]
     if backend == "median":
         if opts.cls is not None:
             classes = [normalise_class(opts.cls, field="--class")] * len(texts)
@@ -253,7 +291,7 @@ def estimate_many(
             classes = [m.cls for m in get_matcher(announce=opts.announce).match_many(texts)]
         out = []
         for cls, text in zip(classes, texts, strict=True):
-            p = median_params(cls, opts.median)
+            p = median_params(cls, opts.median, table)
             out.append(
                 MaterialEstimate(
                     cls,
@@ -265,13 +303,16 @@ def estimate_many(
                     None,
                     [],
                     text,
-                    f"{opts.median} median of the catalogue ranges",
+                    f"{opts.median} median of the {table} ranges",
+                    ranges=table,
                 )
             )
         return out
     out = []
     for text in texts:
-        ans = ask_material(text, png, opts.llm, ranged=(backend == "llm"), announce=opts.announce)
+        ans = ask_material(
+            text, png, opts.llm, ranged=(backend == "llm"), announce=opts.announce, table=table
+        )
         raw = (
             ans.raw_answers[0]
             if len(ans.raw_answers) == 1
@@ -289,6 +330,7 @@ def estimate_many(
                 [],
                 text,
                 "LLM answer" + (" with ranges" if backend == "llm" else " without ranges (naive)"),
+                ranges=table,
             )
         )
     return out
@@ -400,6 +442,8 @@ def estimate_objects(
     """
     opts = options or EstimateOptions()
     backend = _check_backend(backend)
+    table = check_ranges(opts.ranges if opts.ranges is not None else active_ranges(), "--ranges")
+    opts = replace(opts, ranges=table)
     text = check_prompt(prompt)
     if not names:
         return []
@@ -432,7 +476,13 @@ def estimate_objects(
 
     png = load_image_png(image) if image is not None else None
     answers = ask_objects(
-        text, list(names), png, opts.llm, ranged=(backend == "llm"), announce=opts.announce
+        text,
+        list(names),
+        png,
+        opts.llm,
+        ranged=(backend == "llm"),
+        announce=opts.announce,
+        table=table,
     )
     out = []
     for name in names:
@@ -451,6 +501,7 @@ def estimate_objects(
                 text,
                 f"LLM answer for object {name!r}"
                 + (" with ranges" if backend == "llm" else " without ranges (naive)"),
+                ranges=table,
             )
         )
     return out

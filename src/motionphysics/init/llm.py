@@ -204,13 +204,16 @@ def parse_answer(text: str) -> tuple[str, dict[str, float], list[str]]:
     return cls, out, ignored
 
 
-def _validated(text: str, source: str = "llm") -> tuple[MaterialParams, list[Clamp], list[str]]:
+def _validated(
+    text: str, source: str = "llm", table: str | None = None
+) -> tuple[MaterialParams, list[Clamp], list[str]]:
     cls, values, ignored = parse_answer(text)
     try:
         # Physically impossible values (a negative modulus, nu > 0.5) raise here too,
-        # so they are re-asked once and then refused; out-of-range ones are clamped.
+        # so they are re-asked once and then refused; out-of-range ones are clamped
+        # (into range table ``table``: extended, paper; None: the active one).
         params, clamps = validate(
-            cls, values, on_out_of_range="clamp", origin="answer", source=source
+            cls, values, on_out_of_range="clamp", origin="answer", source=source, table=table
         )
     except UserInputError as err:
         raise ValueError(str(err)) from None
@@ -309,8 +312,12 @@ def ask_material(
     announce: bool = False,
     stream=None,
     verbose: bool = False,
+    table: str | None = None,
 ) -> LLMAnswer:
     """Ask the LLM for the material of ``prompt`` (and reference image), validated.
+
+    ``table``: the range table the inquiry lists and the answer is clamped into
+    (``extended``, ``paper``; None: the active one).
 
     ``ranged=False`` is the naive (PhysFlow) inquiry without ranges. ``announce``: while
     a request is out, show on ``stream`` (stderr) that the tool is waiting, for whom and
@@ -323,7 +330,7 @@ def ask_material(
     opts = (options or LLMOptions()).resolved()
     source = "llm" if ranged else "naive"
     client = make_client(opts)
-    messages = build_messages(prompt, image_png, ranged=ranged)
+    messages = build_messages(prompt, image_png, ranged=ranged, table=table)
     where = opts.base_url or "the OpenAI API"
     out = stream or sys.stderr
 
@@ -347,13 +354,13 @@ def ask_material(
     text = ask("asking", messages)
     raws.append(text)
     try:
-        params, clamps, ignored = _validated(text, source)
+        params, clamps, ignored = _validated(text, source, table)
     except ValueError as first:
         messages = [*messages, {"role": "assistant", "content": text}, repair_message(str(first))]
         text = ask(f"answer unusable ({first}); asking again", messages)
         raws.append(text)
         try:
-            params, clamps, ignored = _validated(text, source)
+            params, clamps, ignored = _validated(text, source, table)
         except ValueError as second:
             raise LLMError(
                 f"llm backend: no usable answer after one re-ask ({first}; then {second})"
@@ -368,7 +375,7 @@ def _object_entry(obj: dict[str, Any], name: str) -> Any:
     return None
 
 
-def _validated_objects(text: str, names: list[str], source: str):
+def _validated_objects(text: str, names: list[str], source: str, table: str | None = None):
     """({name: (MaterialParams, clamps, ignored)} of the usable entries, {name: reason})."""
     good: dict[str, Any] = {}
     bad: dict[str, str] = {}
@@ -385,7 +392,7 @@ def _validated_objects(text: str, names: list[str], source: str):
             bad[name] = f'the answer for object "{name}" is not a JSON object'
             continue
         try:
-            good[name] = _validated(json.dumps(entry), source)
+            good[name] = _validated(json.dumps(entry), source, table)
         except ValueError as err:
             bad[name] = f'object "{name}": {err}'
     return good, bad
@@ -400,6 +407,7 @@ def ask_objects(
     announce: bool = False,
     stream=None,
     verbose: bool = False,
+    table: str | None = None,
 ) -> dict[str, LLMAnswer]:
     """Ask once for the materials of several objects of one prompt: ``{name: LLMAnswer}``.
 
@@ -415,7 +423,7 @@ def ask_objects(
     opts = (options or LLMOptions()).resolved()
     source = "llm" if ranged else "naive"
     client = make_client(opts)
-    messages = build_objects_messages(prompt, names, image_png, ranged=ranged)
+    messages = build_objects_messages(prompt, names, image_png, ranged=ranged, table=table)
     out = stream or sys.stderr
     where = opts.base_url or "the OpenAI API"
     if announce and verbose:
@@ -427,7 +435,7 @@ def ask_objects(
         )
     first = _chat(client, opts, messages)
     raws = [first]
-    good, bad = _validated_objects(first, names, source)
+    good, bad = _validated_objects(first, names, source, table)
     if bad:
         reasons = "; ".join(bad.values())
         messages = [
@@ -440,7 +448,7 @@ def ask_objects(
         ]
         second = _chat(client, opts, messages)
         raws.append(second)
-        good2, bad2 = _validated_objects(second, list(bad), source)
+        good2, bad2 = _validated_objects(second, list(bad), source, table)
         good.update(good2)
         if bad2:
             raise LLMError(

@@ -10,7 +10,10 @@ Deviation from the paper's template, on purpose: every value is asked in SI unit
 (``kappa`` in Pa rather than kPa, ``mu`` in Pa s rather than mPa s) so the answer
 needs no unit conversion, and the non-Newtonian power-law index ``n`` is offered
 as an optional field (default 1 = Bingham). The ranges are read from
-:mod:`motionphysics.materials.catalog` — this module holds no numbers.
+:mod:`motionphysics.materials.catalog` — this module holds no numbers — in the run's
+range table: ``extended`` (the default; the inquiry then also asks for the named
+material's real values and says that modifiers such as "soft" or "runny" move values
+within the type the noun names) or ``paper`` (the paper's table and template exactly).
 
 The ``naive`` variant is PhysFlow's unconstrained inquiry: same question and answer
 format, no ranges.
@@ -21,7 +24,13 @@ from __future__ import annotations
 import base64
 from typing import Any
 
-from motionphysics.materials.catalog import DENSITY, MATERIALS
+from motionphysics.materials.catalog import (
+    DENSITY,
+    MATERIALS,
+    active_ranges,
+    check_ranges,
+    materials,
+)
 
 __all__ = ["build_prompt", "build_messages", "image_part", "repair_message", "SYSTEM_MESSAGE"]
 
@@ -42,8 +51,18 @@ def _param_line(cls: str) -> str:
     return f'- {mc.label} ("{cls}"): ' + ", ".join(parts)
 
 
-def _range_lines(cls: str) -> list[str]:
-    mc = MATERIALS[cls]
+MODIFIER_GUIDANCE = (
+    "Give the real handbook values of the material the prompt names. Words such as soft, "
+    "stiff, squishy, runny or thick move the values within the material type the noun names "
+    "and do not change the type (a soft rubber ball is a soft elastic material, thick honey "
+    "a more viscous Newtonian fluid)."
+)
+"""Said in the ranged ``extended`` inquiry only (the ``paper`` one is the paper's template,
+the naive one PhysFlow's)."""
+
+
+def _range_lines(cls: str, table: str) -> list[str]:
+    mc = materials(table)[cls]
     lines = [f"- {mc.label}:"]
     for ps in mc.params:
         lines.append(f"  - {ps.name}: {ps.range_text()}")
@@ -58,8 +77,12 @@ def _answer_format() -> str:
     return "{\n" + body + "\n}"
 
 
-def build_prompt(text: str, ranged: bool = True, has_image: bool = False) -> str:
-    """The inquiry text for one simulation prompt (``ranged=False``: PhysFlow's naive one)."""
+def build_prompt(
+    text: str, ranged: bool = True, has_image: bool = False, table: str | None = None
+) -> str:
+    """The inquiry text for one simulation prompt (``ranged=False``: PhysFlow's naive one)
+    with the ranges of range table ``table`` (``extended``, ``paper``; None: the active one)."""
+    table = check_ranges(table if table is not None else active_ranges(), "--ranges")
     lines = ["Inputs:", f"- Textual simulation prompt: {text!r}"]
     if has_image:
         lines.append("- Reference image: attached (a render of the scene).")
@@ -69,6 +92,10 @@ def build_prompt(text: str, ranged: bool = True, has_image: bool = False) -> str
         "the most appropriate material type. Then estimate its density (kg/m^3) and relevant "
         "physical parameters."
         + (" Use the image as secondary visual reference only." if has_image else ""),
+    ]
+    if ranged and table == "extended":
+        lines.append(MODIFIER_GUIDANCE)
+    lines += [
         "",
         "Material types (use the id in quotes as material_type) and required parameters "
         "(SI units):",
@@ -81,7 +108,7 @@ def build_prompt(text: str, ranged: bool = True, has_image: bool = False) -> str
             "following valid ranges (SI units):",
         ]
         for cls in MATERIALS:
-            lines += _range_lines(cls)
+            lines += _range_lines(cls, table)
         lines.append(f"- Density (all types): {DENSITY.range_text()}")
     lines += [
         "",
@@ -99,9 +126,11 @@ def image_part(png: bytes) -> dict[str, Any]:
     return {"type": "image_url", "image_url": {"url": f"data:image/png;base64,{b64}"}}
 
 
-def build_messages(text: str, image_png: bytes | None = None, ranged: bool = True) -> list[dict]:
+def build_messages(
+    text: str, image_png: bytes | None = None, ranged: bool = True, table: str | None = None
+) -> list[dict]:
     """Chat Completions messages: system, then the inquiry (text part + optional image part)."""
-    inquiry = build_prompt(text, ranged=ranged, has_image=image_png is not None)
+    inquiry = build_prompt(text, ranged=ranged, has_image=image_png is not None, table=table)
     if image_png is None:
         content: Any = inquiry
     else:
@@ -123,11 +152,15 @@ def repair_message(error: str) -> dict:
 
 
 def build_objects_prompt(
-    text: str, names: list[str], ranged: bool = True, has_image: bool = False
+    text: str,
+    names: list[str],
+    ranged: bool = True,
+    has_image: bool = False,
+    table: str | None = None,
 ) -> str:
     """The inquiry for a scene of several objects: the one-object inquiry, asking for one
     JSON object per object name (keys: the names, exactly as given)."""
-    base = build_prompt(text, ranged=ranged, has_image=has_image)
+    base = build_prompt(text, ranged=ranged, has_image=has_image, table=table)
     listed = ", ".join(f'"{n}"' for n in names)
     example = (
         "{\n"
@@ -145,10 +178,16 @@ def build_objects_prompt(
 
 
 def build_objects_messages(
-    text: str, names: list[str], image_png: bytes | None = None, ranged: bool = True
+    text: str,
+    names: list[str],
+    image_png: bytes | None = None,
+    ranged: bool = True,
+    table: str | None = None,
 ) -> list[dict]:
     """Chat messages of :func:`build_objects_prompt` (system, inquiry + optional image)."""
-    inquiry = build_objects_prompt(text, names, ranged=ranged, has_image=image_png is not None)
+    inquiry = build_objects_prompt(
+        text, names, ranged=ranged, has_image=image_png is not None, table=table
+    )
     content: Any = (
         inquiry if image_png is None else [{"type": "text", "text": inquiry}, image_part(image_png)]
     )

@@ -11,7 +11,9 @@ What each source gets (issue "say what you do"):
   uses them), they are not laws. Outside the range: one warning line each.
   Physically impossible values (:data:`~motionphysics.materials.catalog.PHYSICAL_LIMITS`)
   are errors.
-* estimates are clamped into the ranges; every substitution is a
+* estimates are clamped into the ranges of the run's range table (``init.ranges``:
+  ``extended``, the default, or ``paper``; ``ranges=`` here, else the active table of
+  :func:`~motionphysics.materials.catalog.use_ranges`); every substitution is a
   :class:`~motionphysics.materials.catalog.Clamp` tagged ``clamped`` (or ``range floor``
   when the estimator itself set a below-range real value to the floor) with its source.
 
@@ -25,10 +27,12 @@ from typing import Any
 
 from motionphysics.errors import UserInputError
 from motionphysics.materials.catalog import (
-    MATERIALS,
     Clamp,
     MaterialParams,
+    active_ranges,
     check_physical,
+    check_ranges,
+    materials,
     normalise_class,
     range_notes,
     spec,
@@ -38,10 +42,10 @@ from motionphysics.materials.catalog import (
 __all__ = ["resolve_material", "range_centre"]
 
 
-def range_centre(cls: str, name: str) -> float:
+def range_centre(cls: str, name: str, table: str | None = None) -> float:
     """Centre of a parameter's handbook range (geometric for log-scaled ones; the default
-    when the parameter has one)."""
-    ps = spec(cls, name)
+    when the parameter has one) in range table ``table`` (None: the active one)."""
+    ps = spec(cls, name, table)
     if ps.default is not None:
         return float(ps.default)
     if ps.scale == "log" and ps.low > 0:
@@ -56,13 +60,16 @@ def resolve_material(
     base: dict[str, Any] | None = None,
     *,
     config_origin: str = "material",
+    ranges: str | None = None,
 ) -> dict[str, Any]:
     """Resolve the material of a run.
 
     ``cls_given``/``given``: the config's ``material.class`` and physical fields
     (``MaterialConfig.overrides()``). ``estimate``: ``{class, density, params, backend,
     clamps}`` of an init backend (clamps: dicts with ``kind`` when the backend tagged
-    them). ``base``: a params file ``{class, density, params, origin}``.
+    them). ``base``: a params file ``{class, density, params, origin}``. ``ranges``: the
+    range table estimates are clamped into and written values are checked against
+    (``extended``, ``paper``; None: the active one, ``catalog.active_ranges()``).
 
     Returns ``{"material": MaterialParams, "clamps": [dict], "warnings": [str],
     "range_notes": [dict], "sources": {name: str}, "overrides": given,
@@ -82,7 +89,8 @@ def resolve_material(
         raise UserInputError(
             f"{config_origin}.class: missing (give it in the config or pass --params FILE)"
         )
-    names = MATERIALS[cls].names
+    table = check_ranges(ranges if ranges is not None else active_ranges())
+    names = materials(table)[cls].names
 
     def same(src):
         return (
@@ -126,7 +134,7 @@ def resolve_material(
             picked = True
             break
         if not picked:
-            written_default = range_centre(cls, name)
+            written_default = range_centre(cls, name, table)
             estimated[name] = written_default
             sources[name] = f"range centre of {cls}"
     # Estimates: clamp (tagged with the backend); written values: kept.
@@ -134,7 +142,9 @@ def resolve_material(
     # Validate the whole set once (all fields present), keeping written ones as given.
     merged = {**estimated, **written}
     density = merged.pop("density")
-    params, _ = validate(cls, merged, density=density, on_out_of_range="keep", origin="material")
+    params, _ = validate(
+        cls, merged, density=density, on_out_of_range="keep", origin="material", table=table
+    )
     clamps: list[Clamp] = []
     values = dict(params.values)
     rho = params.density
@@ -142,7 +152,7 @@ def resolve_material(
         **est_vals,
         **({"density": estimated["density"]} if "density" in estimated else {}),
     }.items():
-        ps = spec(cls, name)
+        ps = spec(cls, name, table)
         if not ps.contains(v):
             y = ps.clip(v)
             clamps.append(Clamp(name, v, y, "clamped", sources[name]))
@@ -167,7 +177,7 @@ def resolve_material(
                 c.get("source", est_name),
             )
         )
-    notes = range_notes(params, fields=set(written))
+    notes = range_notes(params, fields=set(written), table=table)
     origin_of = {n: (config_origin if sources[n] == "config" else base_name) for n in written}
     return {
         "material": params,
@@ -177,4 +187,5 @@ def resolve_material(
         "sources": sources,
         "overrides": dict(given),
         "class_override": cls_given is not None and (start is None or not same(start)),
+        "ranges": table,
     }
