@@ -35,7 +35,13 @@ from typing import Any
 
 import numpy as np
 
-from motionphysics.config import RunConfig, SurfaceCollider, config_from_dict, config_to_dict
+from motionphysics.config import (
+    MaterialConfig,
+    ObjectConfig,
+    RunConfig,
+    SceneConfig,
+    SurfaceCollider,
+)
 from motionphysics.errors import SimulationError, UserInputError
 from motionphysics.events import NullObserver, Observer
 
@@ -503,18 +509,45 @@ class _ObjectView:
 
 
 def object_config(cfg: RunConfig, ocfg) -> RunConfig:
-    """The one-object config of object ``ocfg`` (its scene keys, material, velocity)."""
-    data = config_to_dict(cfg)
-    o = ocfg.model_dump(mode="json", by_alias=True)
-    name, mat, vel = o.pop("name"), o.pop("material"), o.pop("initial_velocity")
+    """The one-object config of object ``ocfg`` (its scene keys, material, velocity).
+
+    Built from the typed models (``model_copy``): the keys the person set stay set, and
+    nothing is re-read from plain data (see :func:`_typed`)."""
     # (its part is already selected: the one-object config resolves its material only)
-    o["split"], o["part"] = None, None
-    data["objects"] = None
-    data["scene"] = o
-    data["material"] = mat
-    if vel is not None:
-        data["sim"]["initial_velocity"] = vel
-    return config_from_dict(data, f"objects[{name}]")
+    keys = (ocfg.model_fields_set & set(SceneConfig.model_fields)) - {"split", "part"}
+    scene = SceneConfig.model_construct(
+        _fields_set=set(keys), **{k: getattr(ocfg, k) for k in keys}
+    )
+    sim = cfg.sim
+    if ocfg.initial_velocity is not None:
+        sim = sim.model_copy(update={"initial_velocity": ocfg.initial_velocity})
+    return cfg.model_copy(
+        update={"objects": None, "scene": scene, "material": ocfg.material, "sim": sim}
+    )
+
+
+def _material_block(material, where: str) -> MaterialConfig:
+    """The ``material:`` block recording a resolved material (run.yaml re-runs it)."""
+    from pydantic import ValidationError
+
+    try:
+        return MaterialConfig.model_validate(material.to_dict())
+    except ValidationError as err:  # pragma: no cover - resolved materials are valid
+        first = err.errors()[0]
+        field = ".".join(str(p) for p in first.get("loc", ()))
+        raise UserInputError(f"{where}.{field}: {first.get('msg', 'invalid')}") from None
+
+
+def _typed(cfg: RunConfig, origin: str) -> RunConfig:
+    """``cfg`` (made by ``model_copy``, which runs no validator) checked by the config's
+    own cross-field rules. The assembly passes typed configs down and never re-reads one
+    from plain data: a ``config_to_dict`` -> ``config_from_dict`` round trip would forget
+    which keys the person set (``model_fields_set``) and write defaults in as if given."""
+    try:
+        cfg._objects_or_scene()
+    except ValueError as err:
+        raise UserInputError(f"{origin}: {err}") from None
+    return cfg
 
 
 def resolve_scene_simulation(
@@ -575,10 +608,55 @@ def estimate_objects(
 # camera, ground, rendering# --------------------------------------------------------------------------------------
 # camera, ground, rendering
 # --------------------------------------------------------------------------------------
+GROUND_FRICTION = 0.3
+"""Coulomb coefficient of the default ground (``sim.boundary.DEFAULT_COLLIDER_FRICTION``)."""
+
+
+def default_ground(cfg: RunConfig, lowest_z: float, size: float) -> tuple[RunConfig, str | None]:
+    """``cfg`` with the default ground when it leaves ``boundary_conditions`` out.
+
+    Left out (null): one frictional ``surface_collider`` facing +z (friction
+    :data:`GROUND_FRICTION`) at z = 0 when the scene rests on or above it, else under
+    the scene's lowest particle ``lowest_z`` [m] (a scene that reaches below z = 0
+    stands on a floor there instead of starting inside one); ``size`` [m] (the scene's
+    extent) sets the round-off tolerance. ``boundary_conditions: []`` is free space: no
+    ground. Returns the config with the collider written in (``run.yaml`` records it)
+    and the summary's ``ground:`` line (None when the config gave its own list).
+    """
+    if cfg.boundary_conditions is not None:
+        return cfg, None
+    z = 0.0 if lowest_z >= -1e-4 * max(size, 1e-6) else float(lowest_z)
+    floor = SurfaceCollider(
+        type="surface_collider",
+        point=(0.0, 0.0, z),
+        normal=(0.0, 0.0, 1.0),
+        mode="frictional",
+        friction=GROUND_FRICTION,
+    )
+    where = (
+        "z = 0"
+        if z == 0.0
+        else f"z = {z:.4g} (under the scene's lowest point, which lies below z = 0)"
+    )
+    note = (
+        f"ground: frictional floor at {where} (boundary_conditions left out; "
+        "`boundary_conditions: []` for free space)"
+    )
+    return cfg.model_copy(update={"boundary_conditions": [floor]}), note
+
+
+def _lowest(scene, scene_cfg) -> tuple[float, float]:
+    """(lowest z [m], largest extent [m]) of the splat centres ``prepare`` will simulate."""
+    from motionphysics.scene.prepare import selected_means
+
+    pts = selected_means(scene, scene_cfg)
+    return float(pts[:, 2].min()), float(np.ptp(pts, axis=0).max())
+
+
 def _ground_height(cfg: RunConfig, xy_centre: np.ndarray, up: np.ndarray) -> float | None:
     """Height (along ``up``) of the highest upward-facing collider plane under the object."""
     best = None
-    for bc in cfg.boundary_conditions:
+    for bc in cfg.boundary_conditions or []:
         if isinstance(bc, SurfaceCollider) and bc.mode != "cut":
             n = np.asarray(bc.normal, dtype=np.float64)
             n = n / max(np.linalg.norm(n), 1e-12)
@@ -898,6 +976,10 @@ class Assembly:
     :class:`SceneResolution`. None: one object."""
     last_rollout: Any = None
     """The last :meth:`simulate`'s full rollout result (``active`` [T, P], ``wall_hits``)."""
+    scene_notes: dict[str, str] = field(default_factory=dict)
+    """Lines for the ``scene`` block of params.json and the summary: ``ground`` (the
+    default ground, when the config left ``boundary_conditions`` out) and ``fill`` (why
+    ``fill: true`` gave no interior particle)."""
     _simulation: Any = field(default=None, repr=False)
 
     @property
@@ -1108,6 +1190,7 @@ def assemble(
         from motionphysics.scene.prepare import prepare
 
         scene = load_scene(cfg.scene.source, shade=cfg.scene.shade)
+        cfg, ground_note = default_ground(cfg, *_lowest(scene, cfg.scene))
         # The fitted domain leaves room for the motion the config implies (initial
         # velocity, gravity, forces). The class-based spread allowance of prepare() is not
         # used: at a fixed sim.grid it widened a sand column's domain 3x (dx 0.031 ->
@@ -1168,8 +1251,7 @@ def assemble(
         }
         # The config records the material that is simulated (before any optimisation),
         # so re-running run.yaml reproduces the run.
-        data = {**config_to_dict(cfg), "material": material.to_dict()}
-        cfg = config_from_dict(data, config_origin)
+        cfg = cfg.model_copy(update={"material": _material_block(material, "material")})
     return Assembly(
         cfg=cfg,
         device=device,
@@ -1184,7 +1266,25 @@ def assemble(
         resolution=resolution,
         observer=observer,
         reference_image=ref_np,
+        scene_notes=_scene_notes(ground_note, sim_scene, observer),
     )
+
+
+def _scene_notes(ground_note: str | None, sim_scene, observer) -> dict[str, str]:
+    """The ``ground`` and ``fill`` lines of a prepared scene (see Assembly.scene_notes);
+    a fill that leaves the object hollow is also a warning (its mass is the surface's)."""
+    notes = {}
+    if ground_note:
+        notes["ground"] = ground_note
+        observer.message("info", ground_note)
+    fill = getattr(sim_scene, "fill_note", None)
+    if fill:
+        notes["fill"] = fill
+        if getattr(sim_scene, "fill_hollow", False):
+            warn(fill, observer)
+        else:
+            observer.message("info", fill)
+    return notes
 
 
 def split_config(cfg: RunConfig, origin: str = "<config>") -> RunConfig:
@@ -1206,23 +1306,35 @@ def split_config(cfg: RunConfig, origin: str = "<config>") -> RunConfig:
             f"{sc.source} splits into by {sc.split}"
         )
     names = sc.split_names or [f"part{int(p)}" for p in parts]
-    data = config_to_dict(cfg)
-    base = dict(data["scene"])
-    base.pop("split_names")
+    from pydantic import ValidationError
+
+    base = {
+        k: getattr(sc, k) for k in sc.model_fields_set - {"split_names", "max_particles", "part"}
+    }
     total = int(counts.sum())
-    data["objects"] = [
-        {
-            **base,
-            "name": name,
-            "part": int(p),
-            "max_particles": max(1, round(sc.max_particles * int(c) / total)),
-            "material": data["material"],
-        }
-        for name, p, c in zip(names, parts, counts, strict=True)
-    ]
-    data.pop("scene")
-    data.pop("material")
-    return config_from_dict(data, origin)
+    objects = []
+    for i, (name, p, c) in enumerate(zip(names, parts, counts, strict=True)):
+        try:
+            objects.append(
+                ObjectConfig(
+                    **base,
+                    name=name,
+                    part=int(p),
+                    max_particles=max(1, round(sc.max_particles * int(c) / total)),
+                    material=cfg.material,
+                )
+            )
+        except ValidationError as err:
+            first = err.errors()[0]
+            field = ".".join(str(q) for q in first.get("loc", ()))
+            raise UserInputError(
+                f"{origin}: objects[{i}].{field} (from scene.split): got "
+                f"{first.get('input')!r}; {first.get('msg', 'invalid')}"
+            ) from None
+    new = cfg.model_copy(
+        update={"objects": objects, "scene": SceneConfig(), "material": MaterialConfig()}
+    )
+    return _typed(new, origin)
 
 
 def _assemble_objects(
@@ -1271,6 +1383,10 @@ def _assemble_objects(
                     scene, o.source, o.split, o.part, o.split_property, f"objects[{i}].part"
                 )
             scenes.append(scene)
+        lows = [_lowest(s, o) for s, o in zip(scenes, ocfgs, strict=True)]
+        cfg, ground_note = default_ground(
+            cfg, min(z for z, _ in lows), max(size for _, size in lows)
+        )
         classes = [o.material.class_ for o in ocfgs]
         sim_scene = prepare_objects(
             scenes, ocfgs, cfg.sim, list(cfg.boundary_conditions), list(cfg.forces), classes
@@ -1351,10 +1467,16 @@ def _assemble_objects(
             "objects": {name: prov for name, prov in zip(names, provs, strict=True)},
         }
         # run.yaml records each object's simulated material (re-running reproduces it)
-        data = config_to_dict(cfg)
-        for entry, mat in zip(data["objects"], materials, strict=True):
-            entry["material"] = mat.to_dict()
-        cfg = config_from_dict(data, config_origin)
+        cfg = cfg.model_copy(
+            update={
+                "objects": [
+                    o.model_copy(
+                        update={"material": _material_block(mat, f"objects[{o.name}].material")}
+                    )
+                    for o, mat in zip(cfg.objects, materials, strict=True)
+                ]
+            }
+        )
     material = SceneMaterial(objects, _np(sim_scene.object_id).astype(np.int64))
     return Assembly(
         cfg=cfg,
@@ -1371,6 +1493,7 @@ def _assemble_objects(
         observer=observer,
         reference_image=ref_np,
         objects=objects,
+        scene_notes=_scene_notes(ground_note, sim_scene, observer),
     )
 
 

@@ -288,6 +288,9 @@ class AddImpulse(_ForceBase):
     """Velocity change [m/s] of the selected particles (an impulse per unit mass), delivered
     within the substep holding ``start``, or evenly over ``[start, end)`` when ``end`` is
     given."""
+    end: float | None = None
+    """End time [s] (or substep index) of the window the impulse is spread over; absent or
+    null: the whole impulse is delivered within the substep holding ``start``."""
 
 
 class ForceParticlesTranslation(_ForceBase):
@@ -321,6 +324,8 @@ class ReleaseParticles(_ForceBase):
     many equal-width layers: layer l (0 = highest) at ``start + (l + 1) (end - start) / layers``."""
     release_axis: Literal["x", "y", "z"] = "z"
     """Axis the layers are stacked along; the layer with the largest coordinate goes first."""
+    end: float | None = None
+    """Time [s] (or substep index) the last layer is released (required; null: missing)."""
 
 
 Force = Annotated[
@@ -503,7 +508,11 @@ class RunConfig(_Strict):
     init: InitConfig = InitConfig()
     """Material estimation: ``ranges`` (``extended`` or ``paper``)."""
     sim: SimConfig = SimConfig()
-    boundary_conditions: list[BoundaryCondition] = []
+    boundary_conditions: list[BoundaryCondition] | None = None
+    """Grid conditions and colliders. Left out (null): a frictional floor at z = 0 (under
+    the scene's lowest point when the scene reaches below z = 0), said in the summary and
+    written to ``run.yaml``; ``[]``: free space (no ground). The faces of the simulation
+    domain are walls either way."""
     forces: list[Force] = []
     camera: CameraConfig = CameraConfig()
     optimize: OptimizeConfig = OptimizeConfig()

@@ -156,6 +156,7 @@ def run_pipeline(
             on_camera=writer.record_camera,
         )
         cfg = parts.cfg
+        writer.state.setdefault("scene", {}).update(parts.scene_notes)
         material, res = parts.material, parts.resolution
         writer.record_material(material, res.values, res.record())
         writer.state["provenance"] = parts.provenance
@@ -187,7 +188,8 @@ def run_pipeline(
             xs, Fs, vs, substeps = parts.simulate(frames, st)
             writer.state["sim_context"]["substeps"] = substeps
             writer.state["sim_context"]["dt"] = cfg.sim.frame_dt / substeps
-            wall_hits = getattr(getattr(parts.simulation, "last", None), "wall_hits", None)
+            # (the rollout of parts.simulate; parts.simulation would build another one)
+            wall_hits = getattr(parts.last_rollout, "wall_hits", None)
             if wall_hits:
                 writer.state["wall_hits"] = list(wall_hits)
                 first = wall_hits[0]

@@ -766,7 +766,7 @@ def _floor_height(cfg) -> float | None:
         return None
     up = -g / np.linalg.norm(g)
     best = None
-    for bc in cfg.boundary_conditions:
+    for bc in cfg.boundary_conditions or []:
         if getattr(bc, "type", None) != "surface_collider" or getattr(bc, "mode", None) == "cut":
             continue
         n = np.asarray(bc.normal, dtype=np.float64)
@@ -915,6 +915,10 @@ def summary_text(result: RunResult) -> str:
             f"  {kind} {c['field']}: {format_value(c['original'])} -> "
             f"{format_value(c['clamped'])}{src}"
         )
+    scene = p.get("scene") or {}
+    for key in ("ground", "fill"):  # the default ground; why fill: true added nothing
+        if scene.get(key):
+            lines.append(f"{key}:{' ' * (9 - len(key))} {scene[key].removeprefix(key + ': ')}")
     opt = p.get("fit") or p.get("optimise")
     if opt:
         label = "fit:      " if p.get("fit") else "optimise: "

@@ -10,7 +10,10 @@ Steps, in order (each documented at its function):
 4. domain: the given ``sim.domain`` (checked), or fitted around the particles and the
    ground planes; ``dx = longest side / sim.grid``, nodes per axis ``ceil(side/dx)+1``.
 5. voxelise at ``dx`` on the simulation grid's cells, flood-fill from outside, and
-   (``fill: true``) put one invisible particle at the centre of every interior cell.
+   (``fill: true``) put one invisible particle at the centre of every interior cell:
+   the free cells the splats enclose, and the cells deep inside a capture whose splats
+   fill the object that no splat centre reaches (:func:`_body_gaps`). When none is
+   added, :attr:`SimScene.fill_note` says why (:func:`_fill_note`).
 6. particle volumes from the voxelisation (rule at :func:`_particle_volumes`).
 7. downsample to ``max_particles`` evenly in space (:func:`stratified_subset`); every
    visible splat follows its nearest kept particle.
@@ -34,6 +37,7 @@ __all__ = [
     "SimScene",
     "prepare",
     "prepare_objects",
+    "selected_means",
     "transform_scene",
     "rotation_matrix",
     "regularise_anisotropy",
@@ -97,6 +101,11 @@ class SimScene:
     """Object index of each particle, shape (P,), int64, or None (one object). ``prepare``
     makes one object; a scene of several objects concatenates their particles and sets
     this (``sim.build_simulation`` reads it: one grid velocity field per object)."""
+    fill_note: str | None = None
+    """With ``fill: true`` and no interior particle: why, and what it means for the run
+    (one line; :func:`_fill_note`). None otherwise."""
+    fill_hollow: bool = False
+    """True when ``fill_note`` says the object is simulated hollow (no enclosed cell)."""
 
     @property
     def n_particles(self) -> int:
@@ -232,7 +241,8 @@ def motion_extent(
         kind = _get(f, "type")
         if _get(f, "unit", "seconds") == "substeps":
             continue  # (substep windows: too short to move the domain)
-        start, end = float(_get(f, "start", 0.0)), float(_get(f, "end", 1e9))
+        end = _get(f, "end", None)  # (null: an impulse at start, or a window that never ends)
+        start, end = float(_get(f, "start", 0.0)), 1e9 if end is None else float(end)
         vec = np.asarray(_get(f, "force", (0.0, 0.0, 0.0)), dtype=np.float64)
         if kind == "add_impulse":
             kicks.append((start, vec))
@@ -586,6 +596,13 @@ def _select_splats(scene: GaussianScene, scene_cfg: SceneConfig, origin_name: st
     return regularise_anisotropy(splats.subset(keep), scene_cfg.max_anisotropy), m
 
 
+def selected_means(scene: GaussianScene, scene_cfg: SceneConfig) -> np.ndarray:
+    """World-frame centres [N, 3] m (float64) of the splats :func:`prepare` simulates
+    (steps 1-3: transform, opacity filter, crop): the visible particles' positions."""
+    splats, _ = _select_splats(scene, scene_cfg, scene_cfg.source)
+    return splats.means.double().numpy()
+
+
 def _fallback_extent(splats: GaussianScene) -> float:
     big = float(splats.scales.max())
     return max(4.0 * big, 1e-3) if math.isfinite(big) else 1e-3
@@ -607,7 +624,13 @@ def _particles_at(splats: GaussianScene, scene_cfg: SceneConfig, lo: np.ndarray,
     shape = tuple(int(v) for v in (c_hi - c_lo))
     shell = voxelise(splats, vox_origin, dx, shape)
     inner, _ = _classify(shell, _CLOSE_CELLS)
-    interior_cells = np.argwhere(inner) if scene_cfg.fill else np.zeros((0, 3), np.int64)
+    # A capture whose splats fill the object (many trained 3DGS scenes put splats through
+    # the volume) has no free enclosed cell: its inside is occupied. The occupied cells
+    # away from its surface that hold no splat centre get fill particles too.
+    gaps, body = _body_gaps(shell, vis, vox_origin, dx)
+    wanted = inner | gaps
+    interior_cells = np.argwhere(wanted) if scene_cfg.fill else np.zeros((0, 3), np.int64)
+    n_wanted = len(interior_cells)
     if len(interior_cells) > scene_cfg.max_particles:
         # Clear cap: never more interior candidates than max_particles (an even subset;
         # the skipped cells' volume goes to the nearest particle, so mass is kept).
@@ -645,7 +668,53 @@ def _particles_at(splats: GaussianScene, scene_cfg: SceneConfig, lo: np.ndarray,
         parent[lost] = near[np.searchsorted(dropped, np.nonzero(lost)[0])]
         particles, volumes = particles[kept], new_volumes
         n_int = int((kept >= n_vis).sum())
-    return particles, volumes, int(n_int), parent, total_volume
+    note, hollow = None, False
+    if scene_cfg.fill and n_int == 0:
+        note, hollow = _fill_note(n_wanted, int(body.sum()), dx, scene_cfg.max_particles)
+    return particles, volumes, int(n_int), parent, total_volume, (note, hollow)
+
+
+def _body_gaps(
+    occ: np.ndarray, centres: np.ndarray, origin: np.ndarray, dx: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(gaps, body)`` bool (same shape as ``occ``): ``body`` = occupied cells at least
+    two cells (6-connected steps) inside the occupied region (the inside of a capture
+    whose splats fill the object; the one or two cell thick layer that splats on a
+    surface occupy, edges and corners included, has none), ``gaps`` = those of them
+    holding no splat centre (``centres`` [N, 3] m)."""
+    from scipy import ndimage
+
+    ball = ndimage.generate_binary_structure(3, 1)
+    body = ndimage.binary_erosion(occ, ball, iterations=2, border_value=0)
+    cell = np.floor((centres - origin) / dx).astype(np.int64)
+    ok = ((cell >= 0) & (cell < np.asarray(occ.shape))).all(axis=1)
+    held = np.zeros(occ.shape, dtype=bool)
+    held[tuple(cell[ok].T)] = True
+    return body & ~held, body
+
+
+def _fill_note(n_wanted: int, n_body: int, dx: float, max_particles: int) -> tuple[str, bool]:
+    """Why ``fill: true`` gave no interior particle, with the consequence: ``(line,
+    hollow)``; ``hollow`` when the object is simulated as a shell (no enclosed cell)."""
+    if n_wanted > 0:
+        return (
+            f"fill: the {n_wanted} interior particles were all dropped by scene.max_particles"
+            f" = {max_particles}; the nearest kept particles carry their mass",
+            False,
+        )
+    if n_body > 0:
+        return (
+            f"fill: nothing to add: the capture's splats already fill its inside (all "
+            f"{n_body} inner cells at dx = {dx:.3g} m hold a splat centre); simulated solid",
+            False,
+        )
+    return (
+        f"fill: no interior particles: at dx = {dx:.3g} m the splats enclose no cell (the "
+        "surface is open, has gaps wider than 2 cells, or is thinner than 3 cells at this "
+        "grid); the object is simulated hollow, with the mass of its surface layer only "
+        "(a finer sim.grid or a closed mesh fills it)",
+        True,
+    )
 
 
 def prepare(
@@ -686,7 +755,9 @@ def prepare(
     targets = _wall_targets(wall_lo, wall_hi, boundary_conditions)
     lo, dims, hi, wall_hi = _aligned_grid(wall_lo, wall_hi, dx, targets, keep_dims)
 
-    particles, volumes, n_int, parent, total_volume = _particles_at(splats, scene_cfg, lo, dx)
+    particles, volumes, n_int, parent, total_volume, (note, hollow) = _particles_at(
+        splats, scene_cfg, lo, dx
+    )
     offset = vis - particles[parent]
 
     return SimScene(
@@ -704,6 +775,8 @@ def prepare(
         total_volume=total_volume,
         wall_lo=torch.from_numpy(np.asarray(wall_lo, dtype=np.float64)).float(),
         wall_hi=torch.from_numpy(np.asarray(wall_hi, dtype=np.float64)).float(),
+        fill_note=note,
+        fill_hollow=hollow,
     )
 
 
@@ -817,7 +890,7 @@ def prepare_objects(
     int_start = int(vis_start[-1]) + np.concatenate([[0], np.cumsum(n_int)])
     particles, volumes, oid, parents, offsets = [], [], [], [], []
     order_vis, order_int = [], []
-    for k, ((sp, _), (pts, vol, ni, parent, _tv)) in enumerate(zip(picked, parts, strict=True)):
+    for k, ((sp, _), (pts, vol, ni, parent, _tv, _n)) in enumerate(zip(picked, parts, strict=True)):
         nv = len(pts) - ni
         order_vis.append((pts[:nv], vol[:nv], k))
         order_int.append((pts[nv:], vol[nv:], k))
@@ -847,4 +920,9 @@ def prepare_objects(
         wall_lo=torch.from_numpy(np.asarray(wall_lo, dtype=np.float64)).float(),
         wall_hi=torch.from_numpy(np.asarray(wall_hi, dtype=np.float64)).float(),
         object_id=torch.from_numpy(np.concatenate(oid)),
+        fill_note="; ".join(
+            f"{o.name}: {p[5][0]}" for o, p in zip(object_cfgs, parts, strict=True) if p[5][0]
+        )
+        or None,
+        fill_hollow=any(p[5][1] for p in parts),
     )

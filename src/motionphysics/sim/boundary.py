@@ -64,7 +64,7 @@ _TIME_EPS = 1.0e-3
 """Window tests compare ``t + _TIME_EPS * dt`` so a substep starting exactly at a window
 edge (up to round-off of ``substep * dt``) is classified the same on every machine."""
 
-_NO_END = 1.0e9  # config default of `end`: "never ends"
+_NO_END = 1.0e9  # config default of `end`: "never ends" (a null `end` is read as this)
 
 
 def particle_bounds(domain_lo: Sequence[float], dx: float, grid_dims: Sequence[int]):
@@ -306,7 +306,10 @@ class _Window:
 
 
 def _window(entry, where: str) -> _Window:
-    start, end = float(entry.start), float(entry.end)
+    # ``end`` null (an impulse delivered at ``start``; release_particles checks its own)
+    # leaves the window open
+    start = float(entry.start)
+    end = _NO_END if entry.end is None else float(entry.end)
     if not (math.isfinite(start) and math.isfinite(end)):
         raise UserInputError(f"{where}: start and end must be finite numbers")
     if end <= start:
@@ -530,7 +533,29 @@ class BoundaryProgram:
         for i, force in enumerate(forces):
             where = f"forces[{i}]"
             prog._add_force(_as_model(force, Force, where), x0, where)
+        if prog.walls is not None and not any(op.kind == "bounding_box" for op in prog._grid_ops):
+            prog._add_domain_walls()
         return prog
+
+    def _add_domain_walls(self) -> None:
+        """Slip walls on the faces of the material box when the config names no
+        ``bounding_box``: the nodes on or beyond a face lose their outward velocity.
+
+        G2P keeps particles inside the box by projecting their positions onto it; without
+        a wall in the grid, the grid velocity there still pointed out of the box (gravity
+        kept accelerating it), so a body that reached a face was pressed flat against it
+        (a ball fallen onto the domain floor ended as a sheet of zero thickness). The faces
+        are walls whatever the config says; ``bounding_box`` adds friction or thickness."""
+        first, last = self._wall_nodes(2)
+        self._grid_ops.append(
+            _GridOp(
+                "domain walls",
+                _Window(0.0, math.inf, "seconds"),
+                "bounding_box",
+                {"first": first, "last": last},
+                None,
+            )
+        )
 
     def _new_param(self, name: str, value, unit: str) -> BoundaryParam:
         wp = init_warp()
@@ -649,7 +674,7 @@ class BoundaryProgram:
             # an impulse: the velocity change `force` [m/s], delivered evenly over the window
             # [start, end) when `end` is given, else within the one substep holding `start`
             param = self._new_param(f"{where}.force", _finite(force.force, f"{where}.force"), "m/s")
-            given_end = "end" in force.model_fields_set
+            given_end = force.end is not None
             self._particle_ops.append(
                 _ParticleOp(where, win, "impulse", mask, {"given_end": given_end}, param)
             )
@@ -679,7 +704,7 @@ class BoundaryProgram:
                 )
             )
         elif isinstance(force, ReleaseParticles):
-            if "end" not in force.model_fields_set:
+            if force.end is None:
                 raise UserInputError(
                     f"{where}.end: release_particles needs the time the last layer is released"
                 )
@@ -806,10 +831,11 @@ class BoundaryProgram:
                     **kw,
                 )
             elif op.kind == "bounding_box":
+                friction = op.param.array if op.param is not None else self._zero_friction()
                 _launch(
                     K._bounding_box,
                     dims,
-                    [off_v, s["first"], s["last"], op.param.array],
+                    [off_v, s["first"], s["last"], friction],
                     [grid_v],
                     **kw,
                 )

@@ -138,16 +138,18 @@ def build_simulation(
         object_id=object_id if object_id is not None else getattr(sim_scene, "object_id", None),
         contact_friction=contact_friction,
     )
-    if run_cfg.boundary_conditions or run_cfg.forces:
+    # (the faces of the material box are walls even when the config names none:
+    # BoundaryProgram adds them; ``boundary_conditions`` null -- the default ground not
+    # yet resolved by the assembly -- is read as none)
+    bcs = list(run_cfg.boundary_conditions or [])
+    if bcs or run_cfg.forces or walls is not None:
         try:
             from motionphysics.sim.boundary import BoundaryProgram
         except ImportError as err:  # pragma: no cover - the boundary module ships with sim
             raise UserInputError(
                 "boundary_conditions/forces: the boundary module is not available in this build"
             ) from err
-        model.boundary = BoundaryProgram.from_config(
-            list(run_cfg.boundary_conditions), list(run_cfg.forces), model
-        )
+        model.boundary = BoundaryProgram.from_config(bcs, list(run_cfg.forces), model)
     if sim_cfg.substeps == "auto":
         substeps = auto_substeps(material_sim, model.dx, sim_cfg.frame_dt)
     else:

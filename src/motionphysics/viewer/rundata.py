@@ -173,7 +173,7 @@ def _rebuild_splats(path: Path, config, parent: np.ndarray, offset: np.ndarray):
         scene,
         config.scene,
         config.sim,
-        list(config.boundary_conditions),
+        list(config.boundary_conditions or []),
         forces=list(config.forces),
         material_class=config.material.class_,
     )

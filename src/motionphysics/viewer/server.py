@@ -389,7 +389,7 @@ class Viewer:
             up = np.asarray(self._up_direction(v))
             centre = 0.5 * (v.lo + v.hi)
             ground_done = False
-            for j, bc in enumerate(cfg.boundary_conditions):
+            for j, bc in enumerate(cfg.boundary_conditions or []):
                 name = f"/run{i}/bc{j}"
                 if isinstance(bc, SurfaceCollider):
                     n = np.asarray(bc.normal, dtype=np.float64)
