@@ -400,16 +400,19 @@ def config_reference() -> str:
 
     lines: list[str] = []
     top = RunConfig.model_fields
+    top_docs = field_docs(RunConfig)
     scalars = [
         n
         for n, f in top.items()
-        if not _is_section(f.annotation) and not _is_list_of_kinds(f.annotation)
+        if not _is_section(f.annotation) and not _is_list_of_kinds(_no_none(f.annotation))
     ]
     for name, f in top.items():
         ann = f.annotation
-        if _is_list_of_kinds(ann):
+        if _is_list_of_kinds(_no_none(ann)):
             lines += [f"#### `{name}` (a list; each entry's `type` picks one kind)", ""]
-            for m in _union_members(ann):
+            if top_docs.get(name):
+                lines += [plain(top_docs[name]), ""]
+            for m in _union_members(_no_none(ann)):
                 doc = plain(inspect.getdoc(m) or "") if m.__doc__ else ""
                 lines += [f"`{{type: {_tag(m)}}}`" + (f": {cell(doc)}" if doc else ""), ""]
                 lines += model_table(m)
@@ -425,6 +428,15 @@ def config_reference() -> str:
     lines += ["#### top level", ""]
     lines += model_table(_subset(RunConfig, scalars))
     return "\n".join(lines).rstrip("\n")
+
+
+def _no_none(ann: Any) -> Any:
+    """``X`` of an annotation ``X | None`` (else the annotation itself)."""
+    if typing.get_origin(ann) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(ann) if a is not type(None)]
+        if len(args) == 1:
+            return args[0]
+    return ann
 
 
 def _is_list_of_kinds(ann: Any) -> bool:
