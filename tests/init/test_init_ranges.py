@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import pytest
+import yaml
 
 from motionphysics.init import EstimateOptions, estimate_many
 from motionphysics.init.baselines import median_params
@@ -145,3 +146,60 @@ def test_every_extended_range_holds_the_papers():
         for ps, pp in zip(mc.params, paper.params, strict=True):
             assert ps.low <= pp.low and ps.high >= pp.high, (cls, ps.name)
             assert bool(ps.note) == ((ps.low, ps.high) != (pp.low, pp.high)), (cls, ps.name)
+
+
+JELLY = """\
+scene: {source: "builtin:cube", scale: 0.2, translate: [0, 0, 0.12], max_particles: 600}
+prompt: "A wobbly jelly cube."
+sim: {grid: 16, frames: 3, frame_dt: 0.04, substeps: auto}
+boundary_conditions:
+  - {type: surface_collider, point: [0, 0, 0], normal: [0, 0, 1], mode: frictional, friction: 0.3}
+  - {type: bounding_box}
+camera: {width: 32, height: 24}
+"""
+
+
+def test_init_ranges_config_key(tmp_path):
+    from motionphysics.config import load_config
+    from motionphysics.errors import UserInputError
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(JELLY)
+    assert load_config(cfg).init.ranges == "extended"  # the default
+    cfg.write_text(JELLY + "init: {ranges: paper}\n")
+    assert load_config(cfg).init.ranges == "paper"
+    cfg.write_text(JELLY + "init: {ranges: handbook}\n")
+    with pytest.raises(UserInputError) as err:
+        load_config(cfg)
+    assert "init.ranges" in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("table", ["extended", "paper"])
+def test_jelly_through_simulate_keeps_its_real_modulus(tmp_path, table, capsys):
+    """A wobbly jelly cube, words only: the kb's jelly (elastic, E = 5e3 Pa) lands in
+    params.json as it is; with init.ranges: paper it is clamped to the paper's elastic
+    floor, as the paper's table did, and the substitution is reported."""
+    from motionphysics.cli import main
+
+    cfg = tmp_path / "jelly.yaml"
+    cfg.write_text(JELLY + ("init: {ranges: paper}\n" if table == "paper" else ""))
+    out = tmp_path / "run"
+    assert main(["--quiet", "simulate", str(cfg), "--out", str(out)]) == 0
+    capsys.readouterr()
+    p = json.loads((out / "params.json").read_text())
+    assert p["class"] == "elastic" and p["provenance"]["estimate"]["ranges"] == table
+    clamps = [c for c in p["provenance"]["clamps"] if c["kind"] != "mapped to simulation"]
+    if table == "extended":
+        assert p["params"]["E"] == 5e3 and clamps == []
+    else:
+        assert p["params"]["E"] == 1e7
+        assert clamps == [
+            {
+                "field": "E",
+                "original": 5e3,
+                "clamped": 1e7,
+                "kind": "range floor",
+                "source": "kb",
+            }
+        ]
+    assert yaml.safe_load((out / "run.yaml").read_text())["init"] == {"ranges": table}

@@ -757,8 +757,10 @@ class KBMatcher:
                 t in MODIFIERS or t in INTENSIFIERS for t in toks[own.start : own.end]
             )
             if own is not None and not only:
-                mods.append(_Mod(w, k, steps, "internal", (j,)))
-                continue
+                lead = toks[own.start : k]
+                if all(t in MODIFIERS or t in INTENSIFIERS for t in lead):
+                    mods.append(_Mod(w, k, steps, "internal", (j,)))
+                continue  # else part of a noun ("paint thinner")
             # attributive: the next noun, past other modifiers and at most _MAX_SKIP words
             nxt = own.end if own is not None else k + 1
             skipped, chain = 0, ()
@@ -917,7 +919,7 @@ class KBMatcher:
                     continue
                 sp = spans[chosen_span]
                 words = tuple(toks[sp.start : sp.end])
-                rest = tuple(t for t in words if t not in MODIFIERS and t not in INTENSIFIERS)
+                rest = _strip_leading(words)
                 if words == name or rest not in texts:
                     continue
             elif m.how == "attributive":
@@ -1059,12 +1061,21 @@ class KBMatcher:
         )
 
 
+def _strip_leading(words: Sequence[str]) -> tuple[str, ...]:
+    """``words`` without their leading modifiers and intensifiers ("very runny honey")."""
+    k = 0
+    while k < len(words) and (words[k] in MODIFIERS or words[k] in INTENSIFIERS):
+        k += 1
+    return tuple(words[k:])
+
+
 def apply_modifiers(
     cls: str, values: dict[str, float], modifiers: Sequence[dict[str, Any]]
 ) -> tuple[dict[str, float], list[dict[str, Any]]]:
     """Move ``values`` of class ``cls`` as the ``modifiers`` of a :class:`KBMatch` say.
 
-    Each quality's steps are summed over the modifiers; a parameter the quality moves in
+    Each quality's steps are summed over the modifiers (a word with several qualities acts
+    through the first one the class has); a parameter the quality moves in
     this class (:data:`MODIFIER_EFFECTS`) is multiplied by 3 per step when log-scaled,
     moved by 4 units per step when linear (:data:`MODIFIER_STEP`). The values are not
     clamped here (the estimate clamps into the run's range table and says so). Returns
@@ -1073,10 +1084,15 @@ def apply_modifiers(
     total: dict[str, float] = {}
     words: dict[str, list[str]] = {}
     for m in modifiers:
+        # A word with several qualities ("gooey": thicker for a fluid, softer for a solid)
+        # acts through the first one this class has.
         for q, st in m["steps"].items():
-            for name in MODIFIER_EFFECTS.get(q, {}).get(cls, ()):
+            names = MODIFIER_EFFECTS.get(q, {}).get(cls, ())
+            for name in names:
                 total[name] = total.get(name, 0.0) + float(st)
                 words.setdefault(name, []).append(m["word"])
+            if names:
+                break
     out = dict(values)
     adjusted = []
     for name, st in total.items():
