@@ -46,7 +46,6 @@ from motionphysics.errors import SimulationError, UserInputError
 from motionphysics.events import NullObserver, Observer
 
 __all__ = [
-    "AUTO_MAP_SUBSTEPS",
     "Assembly",
     "BridgeSimulator",
     "ObjectPart",
@@ -69,10 +68,6 @@ __all__ = [
     "sim_values",
     "simulate_forward",
 ]
-
-AUTO_MAP_SUBSTEPS = 512
-"""Under ``substeps: auto`` the sim map uses ``dt = frame_dt / 512`` (materials.simmap):
-the map must not depend on the substep count it is used to choose."""
 
 
 def _np(a) -> np.ndarray:
@@ -218,15 +213,99 @@ class SimResolution:
             "frame_dt": float(self.frame_dt),
             "length": float(self.context.length),
             "grid_dims": [int(v) for v in self.grid_dims],
+            # what the scene shows (materials.simmap, "What can be seen")
+            "speed_met": float(self.context.speed),
+            "thickness": float(self.context.thickness_or_length),
+            "visible_strain": float(self.context.visible_strain),
+            "visible_changes": [str(n) for n in self.notes],
         }
 
 
-def map_context(cfg: RunConfig, sim_scene, density: float):
+def scene_scales(cfg: RunConfig, sim_scene, closing_speed: float = 0.0) -> dict[str, float]:
+    """What this scene shows of a material (``simmap.SimContext``'s scene fields).
+
+    ``speed_met`` [m/s]: the largest speed the object meets: its fall under gravity onto
+    the support below it (the highest upward-facing ``surface_collider`` under its lowest
+    point, else the domain floor; at most ``g T`` over the run), combined with its initial
+    velocity; imposed velocities (``force_particles_translation``, ``clamp_grid``); the
+    rim speed of imposed rotations; impulses (their velocity change) and constant forces
+    (acceleration x the window, within the run); ``closing_speed`` (several objects: the
+    others' speeds). ``thickness`` [m]: the smallest of the principal extents of the
+    particles and ``sqrt(V / L)`` (volume over length: a rod's diameter, a cube's side).
+    ``duration`` [s]: the simulated time.
+    """
+    pts = np.asarray(_np(sim_scene.particles), dtype=np.float64)
+    T = float(cfg.sim.frames) * float(cfg.sim.frame_dt)
+    grav = np.asarray(cfg.sim.gravity, dtype=np.float64)
+    g = float(np.linalg.norm(grav))
+    speeds = [float(np.linalg.norm(cfg.sim.initial_velocity)) + float(closing_speed)]
+    if g > 0:
+        down = grav / g
+        depth = pts @ down  # larger = lower
+        lowest = float(depth.max())
+        supports = []
+        for bc in cfg.boundary_conditions or []:
+            if getattr(bc, "type", None) != "surface_collider" or bc.mode == "cut":
+                continue
+            n = np.asarray(bc.normal, dtype=np.float64)
+            n = n / max(float(np.linalg.norm(n)), 1e-12)
+            if float(n @ -down) > 0.5:
+                d = float(np.asarray(bc.point, dtype=np.float64) @ down)
+                if d >= lowest - 1e-9:
+                    supports.append(d)
+        wall_lo = getattr(sim_scene, "wall_lo", None)
+        wall_hi = getattr(sim_scene, "wall_hi", None)
+        if wall_lo is not None and wall_hi is not None:
+            lo, hi = _np(wall_lo).astype(np.float64), _np(wall_hi).astype(np.float64)
+            corners = np.array(
+                [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+            )
+            supports.append(float((corners @ down).max()))
+        h = max(0.0, min(supports) - lowest) if supports else 0.0
+        fall = min(np.sqrt(2.0 * g * h), g * T)
+        speeds[0] = float(np.hypot(speeds[0], fall))
+    for item in list(cfg.forces or []) + list(cfg.boundary_conditions or []):
+        kind = getattr(item, "type", None)
+        if kind in ("force_particles_translation", "clamp_grid"):
+            speeds.append(float(np.linalg.norm(item.velocity)))
+        elif kind == "force_particles_rotation":
+            c = np.asarray(item.center, dtype=np.float64)
+            a = np.asarray(item.axis_direction, dtype=np.float64)
+            a = a / max(float(np.linalg.norm(a)), 1e-12)
+            r = pts - c
+            rim = float(np.sqrt(np.max(np.sum(r * r, 1) - (r @ a) ** 2, initial=0.0)))
+            speeds.append(abs(float(item.angular_velocity)) * rim)
+        elif kind == "add_impulse":
+            speeds.append(float(np.linalg.norm(item.force)))
+        elif kind == "add_constant_force":
+            window = max(0.0, min(float(item.end), T) - max(float(item.start), 0.0))
+            if getattr(item, "unit", "seconds") == "substeps":
+                window = T  # (a window in substeps: bounded by the run)
+            speeds.append(float(np.linalg.norm(item.force)) * window)
+    out: dict[str, float] = {"speed_met": max(speeds), "duration": T}
+    if pts.shape[0] >= 4:
+        centred = pts - pts.mean(0)
+        _, _, vt = np.linalg.svd(centred, full_matrices=False)
+        proj = centred @ vt.T
+        ext = proj.max(0) - proj.min(0)
+        length = float(ext.max())
+        vols = getattr(sim_scene, "volumes", None)
+        candidates = [float(ext.min())]
+        if vols is not None and length > 0:
+            candidates.append(float(np.sqrt(float(np.sum(_np(vols))) / length)))
+        t = max(min(candidates), float(sim_scene.dx))
+        out["thickness"] = min(t, float(np.max(pts.max(0) - pts.min(0))))
+    return out
+
+
+def map_context(
+    cfg: RunConfig, sim_scene, density: float, n: int | None = None, closing_speed: float = 0.0
+):
     """The sim-map context of a config and prepared scene (the one place it is made).
 
-    ``dt`` of the map: ``frame_dt / n`` for fixed substeps ``n``; ``frame_dt / 512``
-    under ``auto`` (:data:`AUTO_MAP_SUBSTEPS`), so the map does not depend on the count
-    it is used to choose.
+    ``dt`` of the map: ``frame_dt / n`` (``n``: the fixed ``sim.substeps``, or under
+    ``auto`` the budget ``sim.max_substeps``); the scene's scales
+    (:func:`scene_scales`) tell the map which values can be seen.
     """
     from motionphysics.materials.simmap import SimContext
 
@@ -234,14 +313,24 @@ def map_context(cfg: RunConfig, sim_scene, density: float):
     pts = np.asarray(_np(sim_scene.particles))
     length = float(np.max(pts.max(0) - pts.min(0)))
     gravity = float(np.linalg.norm(np.asarray(cfg.sim.gravity, dtype=np.float64)))
-    n = AUTO_MAP_SUBSTEPS if cfg.sim.substeps == "auto" else int(cfg.sim.substeps)
+    if n is None:
+        n = _budget(cfg) if cfg.sim.substeps == "auto" else int(cfg.sim.substeps)
     return SimContext(
         dx=float(sim_scene.dx),
         dt=frame_dt / n,
         density=float(density),
         length=length,
         gravity=gravity,
+        frame_dt=frame_dt,
+        **scene_scales(cfg, sim_scene, closing_speed),
     )
+
+
+def _budget(cfg: RunConfig) -> int:
+    """Substeps per frame ``substeps: auto`` may spend (``sim.max_substeps``)."""
+    from motionphysics.materials.simmap import MAX_AUTO_SUBSTEPS
+
+    return int(getattr(cfg.sim, "max_substeps", None) or MAX_AUTO_SUBSTEPS)
 
 
 def sim_values(physical: Mapping[str, Any], cls: str, ctx) -> dict[str, Any]:
@@ -285,20 +374,23 @@ def resolve_substeps(cfg: RunConfig, cls: str, values: Mapping[str, Any], dx: fl
     return int(auto_substeps({"class": cls, **_floats(values)}, float(dx), float(cfg.sim.frame_dt)))
 
 
-def resolve_simulation(material, cfg: RunConfig, sim_scene) -> SimResolution:
+def resolve_simulation(
+    material, cfg: RunConfig, sim_scene, closing_speed: float = 0.0
+) -> SimResolution:
     """Map context, simulation values and substeps of ``material`` (MaterialParams).
 
     The count comes from :func:`motionphysics.materials.simmap.plan_substeps`: a fixed
     ``sim.substeps`` that would make the material behave as another class is refused
-    (one line saying what is needed); under ``auto`` the mapping step is refined until
-    the class is kept (up to a cap, with a note when it binds) and the run's count is the
-    CFL count of the mapped values. ``notes`` of the plan are returned for the caller to
-    print.
+    (one line saying what is needed); under ``auto`` the map spends up to the budget
+    ``sim.max_substeps`` to simulate every visible value as asked and the run's count is
+    the CFL count of the mapped values. ``notes`` (a visible change the budget forced,
+    with its consequence) are returned for the caller to print.
+    ``closing_speed``: several objects: the speed the others move at [m/s].
     """
-    from motionphysics.materials.simmap import plan_substeps
+    from motionphysics.materials.simmap import SCENE_KEYS, plan_substeps
     from motionphysics.sim.solver import auto_substeps
 
-    ctx0 = map_context(cfg, sim_scene, float(material.density))
+    ctx0 = map_context(cfg, sim_scene, float(material.density), closing_speed=closing_speed)
     plan = plan_substeps(
         material,
         cfg.sim.substeps,
@@ -307,7 +399,9 @@ def resolve_simulation(material, cfg: RunConfig, sim_scene) -> SimResolution:
         length=float(ctx0.length),
         gravity=float(ctx0.gravity),
         cfl_substeps=auto_substeps,
+        cap=_budget(cfg),
         where="sim.substeps",
+        scene={k: getattr(ctx0, k) for k in SCENE_KEYS},
     )
     ctx = plan.ctx
     phys = {"density": float(material.density), **{k: float(v) for k, v in material.values.items()}}
@@ -504,6 +598,9 @@ class _ObjectView:
 
     def __init__(self, sim_scene, mask: np.ndarray):
         self.particles = _np(sim_scene.particles)[mask]
+        self.volumes = _np(sim_scene.volumes)[mask]
+        self.wall_lo = getattr(sim_scene, "wall_lo", None)
+        self.wall_hi = getattr(sim_scene, "wall_hi", None)
         self.dx = float(sim_scene.dx)
         self.grid_dims = tuple(int(v) for v in sim_scene.grid_dims)
 
@@ -558,9 +655,25 @@ def resolve_scene_simulation(
     object's CFL limit under ``auto``)."""
     oid = _np(sim_scene.object_id).astype(np.int64)
     per = []
-    for k, (mat, ocfg) in enumerate(zip(materials, cfg.object_configs(), strict=True)):
+    ocfgs = list(cfg.object_configs())
+    # Objects meet each other: each one's map sees the others' speeds (closing speed).
+    own = [
+        float(
+            np.linalg.norm(
+                o.initial_velocity if o.initial_velocity is not None else cfg.sim.initial_velocity
+            )
+        )
+        for o in ocfgs
+    ]
+    for k, (mat, ocfg) in enumerate(zip(materials, ocfgs, strict=True)):
+        others = max([v for j, v in enumerate(own) if j != k], default=0.0)
         per.append(
-            resolve_simulation(mat, object_config(cfg, ocfg), _ObjectView(sim_scene, oid == k))
+            resolve_simulation(
+                mat,
+                object_config(cfg, ocfg),
+                _ObjectView(sim_scene, oid == k),
+                closing_speed=others,
+            )
         )
     from motionphysics.materials.catalog import class_id
 
@@ -1245,7 +1358,10 @@ def assemble(
         provenance = {
             **_provenance(est, res, params_file),
             "clamps": res["clamps"]
-            + [c.to_dict() for c in mapped_substitutions(material, resolution.values)],
+            + [
+                c.to_dict()
+                for c in mapped_substitutions(material, resolution.values, ctx=resolution.context)
+            ],
             "warnings": list(res.get("warnings", [])),
             "range_notes": list(res.get("range_notes", [])),
         }
