@@ -191,7 +191,8 @@ def run_pipeline(
             # (the rollout of parts.simulate; parts.simulation would build another one)
             wall_hits = getattr(parts.last_rollout, "wall_hits", None)
             if wall_hits:
-                writer.state["wall_hits"] = list(wall_hits)
+                # (in the scene block: params.json has one key set for every command)
+                writer.state["scene"]["wall_hits"] = list(wall_hits)
                 first = wall_hits[0]
                 warn(
                     f"material reached the domain wall {first['wall']} at frame {first['frame']}"
