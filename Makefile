@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 export MOTIONPHYSICS_CACHE ?= $(CURDIR)/.cache
 OUT ?= runs/demo
 
-.PHONY: demo test test-slow test-all lint bench peers clean
+.PHONY: demo test test-slow test-all lint bench gpu-check peers clean
 
 $(BIN)/motionphysics: pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -38,6 +38,13 @@ bench: $(BIN)/motionphysics
 	$(BIN)/python benchmarks/bench_render.py --repeats 5
 	$(BIN)/python benchmarks/bench_mpm.py --particles 20000 --substeps 100 --repeats 5
 	$(BIN)/python benchmarks/bench_sysid.py --size fast
+
+# One prepared GPU check (BENCHMARKS.md, "GPU check"): at most 9 minutes on one GPU, a JSON
+# report and a markdown table; one line and exit 0 on a machine without CUDA. No .venv
+# dependency: a GPU machine without internet cannot build it, so the script picks a Python
+# whose torch sees the GPU. Arguments: make gpu-check GPU_CHECK_ARGS="--out FILE --parts ...".
+gpu-check:
+	bash benchmarks/gpu_check.sh $(GPU_CHECK_ARGS)
 
 peers:
 	bash benchmarks/setup_peers.sh

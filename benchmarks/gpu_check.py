@@ -496,6 +496,7 @@ def make_pack(chunk_mib: float | None = None, out=print) -> dict:
     """Download (here, with pip) the wheels the GPU machine's Python lacks and split
     them into ``.gpu_pack/1``, ``.gpu_pack/2``, ... each small enough for one device call
     next to the working tree. Returns the manifest."""
+    _exclude_from_git("/.gpu_pack/")  # first: it must never travel as untracked files
     wheels = PACK_DIR / "wheels"
     shutil.rmtree(PACK_DIR, ignore_errors=True)
     wheels.mkdir(parents=True)
@@ -505,43 +506,53 @@ def make_pack(chunk_mib: float | None = None, out=print) -> dict:
         cmd += ["--platform", plat]
     cmd += [f"{name}=={version}" for name, version in PACK_WHEELS.items()]
     subprocess.run(cmd, check=True)
-    tar_path = PACK_DIR / "wheels.tar"
-    with tarfile.open(tar_path, "w") as tar:
-        for whl in sorted(wheels.glob("*.whl")):
-            tar.add(whl, arcname=whl.name)
-    data = tar_path.read_bytes()
     tree = _tree_bytes()
     room = (chunk_mib * 2**20) if chunk_mib else (DEVICE_CARRY_MIB * 2**20 - tree - 3 * 2**20)
     if room < 2**20:
         raise SystemExit(
             f"gpu-check --pack: the working tree ({tree / 2**20:.0f} MiB) leaves no room"
         )
-    n = math.ceil(len(data) / room)
-    size = math.ceil(len(data) / n)
-    manifest = {
-        "sha256": hashlib.sha256(data).hexdigest(),
-        "bytes": len(data),
-        "chunks": n,
-        "python": PACK_PYTHON,
-        "wheels": sorted(w.name for w in wheels.glob("*.whl")),
-    }
-    for k in range(n):
-        d = PACK_DIR / str(k + 1)
-        d.mkdir()
-        (d / "chunk").write_bytes(data[k * size : (k + 1) * size])
-        (d / "MANIFEST.json").write_text(json.dumps({**manifest, "index": k + 1}, indent=1))
+    manifest = write_pack(sorted(wheels.glob("*.whl")), int(room), PACK_DIR)
+    n, size = manifest["chunks"], manifest["chunk_bytes"]
     shutil.rmtree(wheels)
-    tar_path.unlink()
-    _exclude_from_git("/.gpu_pack/")
     out(
-        f"gpu-check --pack: {len(manifest['wheels'])} wheels, {len(data) / 2**20:.0f} MiB in "
-        f"{n} chunk(s) of <= {size / 2**20:.0f} MiB (working tree {tree / 2**20:.0f} MiB). On "
-        "the GPU machine, back to back (it keeps ignored files while warm):"
+        f"gpu-check --pack: {len(manifest['wheels'])} wheels, "
+        f"{manifest['bytes'] / 2**20:.0f} MiB in {n} chunk(s) of <= {size / 2**20:.0f} MiB "
+        f"(working tree {tree / 2**20:.0f} MiB). On the GPU machine, back to back (it keeps "
+        "ignored files only while warm):"
     )
     for k in range(1, n + 1):
         last = k == n
         command = "bash benchmarks/gpu_check.sh --out $OUT/gpu_check.json" if last else "true"
         out(f"  call {k}: carry ['.gpu_pack/{k}'], command: {command}")
+    return manifest
+
+
+def write_pack(wheels: list[Path], chunk_bytes: int, folder: Path) -> dict:
+    """Tar ``wheels`` and split the tar into ``folder/1/chunk``, ``folder/2/chunk``, ...
+    of at most ``chunk_bytes`` each, every one with the pack's ``MANIFEST.json``."""
+    import io
+
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w") as tar:
+        for whl in wheels:
+            tar.add(whl, arcname=whl.name)
+    data = buf.getvalue()
+    n = max(1, math.ceil(len(data) / chunk_bytes))
+    size = math.ceil(len(data) / n)
+    manifest = {
+        "sha256": hashlib.sha256(data).hexdigest(),
+        "bytes": len(data),
+        "chunks": n,
+        "chunk_bytes": size,
+        "python": PACK_PYTHON,
+        "wheels": sorted(w.name for w in wheels),
+    }
+    for k in range(n):
+        d = folder / str(k + 1)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "chunk").write_bytes(data[k * size : (k + 1) * size])
+        (d / "MANIFEST.json").write_text(json.dumps({**manifest, "index": k + 1}, indent=1))
     return manifest
 
 
@@ -563,13 +574,13 @@ def _exclude_from_git(pattern: str) -> None:
         p.write_text(text + ("" if text.endswith("\n") or not text else "\n") + pattern + "\n")
 
 
-def install_pack(python: str, env: dict[str, str]) -> dict:
-    """Install a complete wheel pack into ``.gpu_pack/site`` (once per pack).
+def install_pack(python: str, env: dict[str, str], folder: Path = PACK_DIR) -> dict:
+    """Install a complete wheel pack in ``folder`` into ``folder/site`` (once per pack).
 
     Returns ``{"status": ..., "site": path or None}``; status ``none`` (no pack),
     ``incomplete: ...``, ``installed``, ``already installed`` or ``failed: ...``."""
     manifests = {}
-    for m in sorted(PACK_DIR.glob("*/MANIFEST.json")):
+    for m in sorted(folder.glob("*/MANIFEST.json")):
         try:
             data = json.loads(m.read_text())
             manifests[int(data["index"])] = (data, m.parent / "chunk")
@@ -586,14 +597,14 @@ def install_pack(python: str, env: dict[str, str]) -> dict:
             "(each device call carries one; see `gpu_check.py --pack`)",
             "site": None,
         }
-    site = PACK_DIR / "site"
+    site = folder / "site"
     stamp = site / ".pack_sha256"
     if stamp.exists() and stamp.read_text() == sha:
         return {"status": "already installed", "site": site}
     data = b"".join(manifests[k][1].read_bytes() for k in range(1, n + 1))
     if hashlib.sha256(data).hexdigest() != sha:
         return {"status": "failed: the chunks do not add up to the pack (sha256)", "site": None}
-    unpacked = PACK_DIR / "unpacked"
+    unpacked = folder / "unpacked"
     shutil.rmtree(unpacked, ignore_errors=True)
     unpacked.mkdir()
     tar_path = unpacked / "wheels.tar"
@@ -670,7 +681,10 @@ def _cell(text: Any) -> str:
 def _figures(p: dict) -> str:
     r, kind = p.get("result") or {}, p.get("kind")
     if kind == "tests" and "passed" in r:
-        return f"{r['passed']} passed, {r['failed']} failed, {r['errors']} errors, {r['skipped']} skipped"
+        return (
+            f"{r['passed']} passed, {r['failed']} failed, {r['errors']} errors, "
+            f"{r['skipped']} skipped"
+        )
     if kind == "mpm" and "cuda" in r:
         s = f"CUDA fwd {_g(r['cuda'].get('forward_pss'))} particle-substeps/s"
         if r.get("forward_speedup"):
@@ -792,8 +806,9 @@ def render_markdown(report: dict) -> str:
             ratio = PAPER_ITERATION_S / r["iteration_s"] if r.get("iteration_s") else None
             lines.append(
                 f"| {r.get('model')} | {r.get('dtype')} | {_g(r.get('parameters'))} | "
-                f"{_g(r.get('iteration_s'))} | {_g(r.get('encode_s'))} | {_g(r.get('predict_s'))} | "
-                f"{_g(r.get('backward_s'))} | {_g(r.get('peak_memory_gb'))} | {_g(ratio)} |"
+                f"{_g(r.get('iteration_s'))} | {_g(r.get('encode_s'))} | "
+                f"{_g(r.get('predict_s'))} | {_g(r.get('backward_s'))} | "
+                f"{_g(r.get('peak_memory_gb'))} | {_g(ratio)} |"
             )
     tests = [p for p in parts if p.get("kind") == "tests" and (p.get("result") or {}).get("tests")]
     for p in tests:
@@ -1228,7 +1243,6 @@ def run_check(
         chosen = probe_python(chosen["command"], env)
     print(env_line(chosen, {"status": pack["status"]}), flush=True)
     missing = {m for m, v in chosen["modules"].items() if not v}
-    out.parent.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="gpu_check_"))
 
     def progress(rec):
@@ -1248,6 +1262,31 @@ def run_check(
         missing=missing,
         progress=progress,
     )
+    env_info = {
+        "host": socket.gethostname(),
+        "commit": _git_commit(),
+        "gpus": gpus,
+        "python": chosen,
+        "pack": pack["status"],
+        "candidates": [describe_python(p) for p in probes],
+    }
+    command = "bash benchmarks/gpu_check.sh " + " ".join(argv if argv is not None else sys.argv[1:])
+    report = finish_report(records, out, env_info, budget_s, started, command.strip())
+    shutil.rmtree(work, ignore_errors=True)
+    sys.stdout.write(render_markdown(report))
+    print(
+        f"gpu-check: report {out}, table {out.with_suffix('.md')}, logs {out.with_suffix('.log')}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def finish_report(
+    records: list[dict], out: Path, env: dict, budget_s: float, started: float, command: str
+) -> dict:
+    """Write the report: ``out`` (JSON), ``out.log`` (every part's output, in order) and
+    ``out.md`` (:func:`render_markdown`). Returns the report."""
+    out.parent.mkdir(parents=True, exist_ok=True)
     log_path = out.with_suffix(".log")
     with open(log_path, "w") as log:
         for rec in records:
@@ -1255,31 +1294,18 @@ def run_check(
                 log.write(f"===== {rec['name']} ({rec['status']}) =====\n")
                 log.write(Path(rec["log"]).read_text(errors="replace"))
                 rec["log"] = str(log_path)
-    shutil.rmtree(work, ignore_errors=True)
     report = {
         "schema": SCHEMA,
         "created": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "command": "bash benchmarks/gpu_check.sh "
-        + " ".join(argv if argv is not None else sys.argv[1:]),
-        "env": {
-            "host": socket.gethostname(),
-            "commit": _git_commit(),
-            "gpus": gpus,
-            "python": chosen,
-            "pack": pack["status"],
-            "candidates": [describe_python(p) for p in probes],
-        },
+        "command": command,
+        "env": env,
         "budget_s": budget_s,
         "seconds": round(time.monotonic() - started, 1),
         "parts": records,
     }
     out.write_text(json.dumps(report, indent=1, default=_jsonable))
     out.with_suffix(".md").write_text(render_markdown(report))
-    sys.stdout.write(render_markdown(report))
-    print(
-        f"gpu-check: report {out}, table {out.with_suffix('.md')}, logs {log_path}", file=sys.stderr
-    )
-    return 0
+    return report
 
 
 if __name__ == "__main__":
