@@ -87,7 +87,7 @@ def test_llm_per_object_answer_in_one_request():
         )
     assert len(srv.requests) == 1
     text = _user_text(srv.requests[0])
-    assert '"axe"' in text and '"duck"' in text and "4.5e10 - 4e11 Pa" in text
+    assert '"axe"' in text and '"duck"' in text and "E: 1e10 - 4e11 Pa" in text  # extended table
     assert (a.cls, a.density, a.values["E"]) == ("metal", 7850.0, 2.0e11)
     assert (d.cls, d.values["nu"]) == ("elastic", 0.45)
     assert a.clamped == [] and d.clamped == []

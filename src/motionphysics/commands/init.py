@@ -9,7 +9,12 @@ parameters, SI), ``backend``, ``confidence``, ``clamped``, ``raw_answer`` (llm),
 ``matches``, ``matched``, ``warnings`` and ``adjusted`` (kb: values moved by modifiers
 such as "soft" or "runny"), ``ranges`` (the range table). Without it a short table.
 ``--ranges paper`` clamps into the paper's table (its ablation) instead of the extended
-one (the default; a run config's ``init.ranges``). Warnings
+one (the default; a run config's ``init.ranges``). A prompt the kb understands too little
+of to name a class (no material, object, class or motion word it knows, e.g. a prompt
+in another language; ``init.kb.UNDERSTOOD_RULE``) exits with status 2 and one line
+saying what it understood and how to go on; with ``--from`` it becomes an error record
+``{"prompt", "error", "understood"}`` on its own line (and a line on stderr) and the
+other prompts go on (exit status 0). Warnings
 (a low-confidence kb match, a non-English prompt) go to stderr, also with ``--quiet``. Bad input (empty or over-long prompt,
 non-UTF-8 ``--from`` file, unreadable image, unknown backend) exits with status 2.
 """
@@ -178,7 +183,12 @@ def _table(est) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from motionphysics.init.estimate import EstimateOptions, check_prompt, estimate_many
+    from motionphysics.init.estimate import (
+        EstimateOptions,
+        check_prompt,
+        estimate_many,
+        not_understood,
+    )
     from motionphysics.init.llm import LLMOptions
 
     if (args.prompt is None) == (args.from_file is None):
@@ -194,22 +204,40 @@ def run(args: argparse.Namespace) -> int:
         ),
         median=args.median or "arithmetic",
         cls=args.cls,
-        announce=not getattr(args, "quiet", False),
+        # what is being loaded / waited for: on a terminal, or with --verbose (a captured
+        # stderr keeps only warnings and errors)
+        announce=not getattr(args, "quiet", False)
+        and (sys.stderr.isatty() or bool(getattr(args, "verbose", False))),
         verbose=bool(getattr(args, "verbose", False)),
         ranges=args.ranges,
     )
     estimates = estimate_many(prompts, args.image, args.backend, options)
+    # A prompt the kb understood too little of to name a class is no answer: one line and
+    # exit status 2; with --from an error record in its place, and the others go on.
+    errors = [
+        not_understood(est.prompt, est.understood, "init") if est.error else None
+        for est in estimates
+    ]
+    if not args.from_file and errors[0]:
+        raise UserInputError(errors[0])
     # Warnings about the material are never hidden, --quiet included.
     for k, est in enumerate(estimates):
         where = f"--from {args.from_file}: line {k + 1}: " if args.from_file else ""
+        if errors[k]:
+            print(f"motionphysics: {where}error: {errors[k]}", file=sys.stderr)
+            continue
         for w in est.warnings:
             print(f"motionphysics: {where}warning: {w}", file=sys.stderr)
         for n in est.notes:
             print(f"motionphysics: {where}note: {n}", file=sys.stderr)
     try:
         if args.from_file:
-            for est in estimates:
-                print(json.dumps(est.to_dict()))
+            for est, err in zip(estimates, errors, strict=True):
+                if err:
+                    record = {"prompt": est.prompt, "error": err, "understood": est.understood}
+                    print(json.dumps(record))
+                else:
+                    print(json.dumps(est.to_dict()))
         elif args.json:
             print(json.dumps(estimates[0].to_dict(), indent=2))
         else:

@@ -42,6 +42,7 @@ __all__ = [
     "estimate_objects",
     "object_phrase",
     "check_prompt",
+    "not_understood",
     "load_image_png",
 ]
 
@@ -105,6 +106,13 @@ class MaterialEstimate:
     ``{"field", "from", "to", "words"}`` (before any clamp)."""
     ranges: str = "extended"
     """The range table the values were clamped into (``extended`` or ``paper``)."""
+    understood: list[str] | None = None
+    """kb: the words of the prompt it knows (names, class words, cues, modifiers)."""
+    error: str | None = None
+    """kb (and median without a class): set when the kb understood too little of the
+    prompt to name a class (``init.kb.UNDERSTOOD_RULE``); the values are then a guess
+    by sentence similarity that ``run`` and ``init`` refuse (exit status 2) unless the
+    class is given. One line, worded for a run (see :func:`not_understood`)."""
 
     @property
     def params(self) -> MaterialParams:
@@ -132,6 +140,8 @@ class MaterialEstimate:
             "notes": list(self.notes),
             "adjusted": [dict(a) for a in self.adjusted],
             "ranges": self.ranges,
+            "understood": None if self.understood is None else list(self.understood),
+            "error": self.error,
         }
 
     def to_json(self, indent: int | None = None) -> str:
@@ -204,6 +214,27 @@ def _check_backend(backend: str) -> str:
     return backend
 
 
+def not_understood(prompt: str, understood: list[str] | None, command: str = "run") -> str:
+    """The one line of a prompt the kb understood too little of to name a class: what it
+    understood and how to go on (``command``: ``run`` or ``init``, whose flags differ)."""
+    from motionphysics.init.kb import mostly_not_english
+
+    shown = prompt if len(prompt) <= 80 else prompt[:77] + "..."
+    words = ", ".join(f"'{w}'" for w in understood or [])
+    got = "no word of it names a material, an object, a class or a motion the kb knows"
+    if words:
+        got += f" (it understood only {words})"
+    if mostly_not_english(prompt):
+        got += " (the kb reads English only)"
+    how = (
+        "give material.class in the config, use --init llm, or write the prompt in English"
+        if command == "run"
+        else "use --backend llm, write the prompt in English, or give material.class in a "
+        "run config"
+    )
+    return f"prompt: the kb backend cannot name a material class for {shown!r}: {got}; {how}"
+
+
 def _from_kb(match, prompt: str, table: str) -> MaterialEstimate:
     from motionphysics.init.kb import apply_modifiers
 
@@ -224,7 +255,14 @@ def _from_kb(match, prompt: str, table: str) -> MaterialEstimate:
             clamped.append(Clamp(k, float(x), float(used), kind, "kb"))
         values[k] = used
     density = values.pop("density")
-    warnings = list(getattr(match, "warnings", []))
+    error = (
+        None
+        if getattr(match, "names_class", True)
+        else not_understood(prompt, getattr(match, "understood", None))
+    )
+    # A prompt the kb cannot name a class for carries its error line instead of the
+    # "not sure: closest ..." warnings of a guess nobody uses.
+    warnings = [] if error else list(getattr(match, "warnings", []))
     notes = []
     for c in clamped:
         if max(c.original, c.clamped) > 3.0 * min(c.original, c.clamped) > 0:
@@ -250,6 +288,8 @@ def _from_kb(match, prompt: str, table: str) -> MaterialEstimate:
         notes=notes,
         adjusted=adjusted,
         ranges=table,
+        understood=getattr(match, "understood", None),
+        error=error,
     )
 
 
@@ -283,14 +323,22 @@ def estimate_many(
             _from_kb(m, p, table) for m, p in zip(matcher.match_many(texts), texts, strict=True)
         ]
     if backend == "median":
+        errors: list[str | None] = [None] * len(texts)
+        understood: list[list[str] | None] = [None] * len(texts)
         if opts.cls is not None:
             classes = [normalise_class(opts.cls, field="--class")] * len(texts)
         else:
             from motionphysics.init.kb import get_matcher
 
-            classes = [m.cls for m in get_matcher(announce=opts.announce).match_many(texts)]
+            matches = get_matcher(announce=opts.announce).match_many(texts)
+            classes = [m.cls for m in matches]
+            understood = [m.understood for m in matches]
+            errors = [
+                None if m.names_class else not_understood(t, m.understood)
+                for m, t in zip(matches, texts, strict=True)
+            ]
         out = []
-        for cls, text in zip(classes, texts, strict=True):
+        for cls, text, err, known in zip(classes, texts, errors, understood, strict=True):
             p = median_params(cls, opts.median, table)
             out.append(
                 MaterialEstimate(
@@ -305,6 +353,8 @@ def estimate_many(
                     text,
                     f"{opts.median} median of the {table} ranges",
                     ranges=table,
+                    understood=known,
+                    error=err,
                 )
             )
         return out

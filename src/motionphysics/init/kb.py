@@ -69,6 +69,7 @@ __all__ = [
     "tokenize",
     "mostly_not_english",
     "CONFIDENCE_THRESHOLD",
+    "UNDERSTOOD_RULE",
     "MODIFIERS",
     "apply_modifiers",
 ]
@@ -95,6 +96,15 @@ FIRST_BONUS = 0.3
 MADE_OF_FACTOR = 1.3
 CONTEXT_FACTOR = 0.35
 """Multiplier of a match that names a container ("a glass of") or a surface ("onto the table")."""
+UNDERSTOOD_RULE = (
+    "the kb names a class only when at least one word of the prompt is a material or object "
+    "it knows (a name or alias), a class word or a behaviour cue (bounces, splashes, "
+    "oozes...); a class from sentence similarity alone is refused"
+)
+"""What "understands too little" means (issue 27): no such word. Such a prompt (a Chinese
+sentence, "A thing falls.") stops ``run`` and ``init`` with exit status 2 unless the
+config gives ``material.class``; its similarity-only confidence is at most
+SEMANTIC_EVIDENCE (0.3)."""
 CONFIDENCE_THRESHOLD = 0.5
 """Below this confidence the kb warns "not sure" (a shape word such as 'ball' alone, a
 scenery word, or similarity only never reach it; a specific name or class word does
@@ -585,6 +595,13 @@ class KBMatch:
     """``explicit``, ``specific``, ``context``, ``generic`` or ``semantic`` (see confidence)."""
     warnings: list[str] = field(default_factory=list)
     """Lines to show the user: low confidence, a non-English prompt."""
+    understood: list[str] | None = None
+    """The words of the prompt the kb knows, in order: names and aliases, class words,
+    behaviour cues, modifiers. None when not computed."""
+    names_class: bool = True
+    """Whether some word of the prompt names a material, an object, a class or a behaviour
+    the kb knows (:data:`UNDERSTOOD_RULE`); False: the class would come from sentence
+    similarity alone, and the run and ``init`` refuse it."""
     modifiers: list[dict[str, Any]] = field(default_factory=list)
     """The modifiers describing the chosen material ("soft", "very runny"): ``{"word",
     "steps": {quality: signed steps}, "how"}``; :func:`apply_modifiers` turns them into
@@ -1018,6 +1035,16 @@ class KBMatcher:
             evidence, why = SEMANTIC_EVIDENCE, "semantic"
         confidence = separation * evidence
         used = self._modifiers_of(chosen, matched_span.get(int(j)), spans, mods, toks)
+        known = sorted(
+            [
+                (sp.start, " ".join(toks[sp.start : sp.end]))
+                for sp in spans
+                if sp.kb or sp.explicit or sp.cues or sp.muted
+            ]
+            + [(m.pos, m.word) for m in mods if not any(sp.start <= m.pos < sp.end for sp in spans)]
+        )
+        understood = list(dict.fromkeys(w for _, w in known))
+        names_class = any(sp.kb or sp.explicit or sp.cues or sp.muted for sp in spans)
         warnings: list[str] = []
         if confidence < CONFIDENCE_THRESHOLD:
             if words is not None:
@@ -1057,6 +1084,8 @@ class KBMatcher:
             words,
             why,
             warnings,
+            understood,
+            names_class,
             used,
         )
 

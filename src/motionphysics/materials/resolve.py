@@ -53,6 +53,11 @@ def range_centre(cls: str, name: str, table: str | None = None) -> float:
     return 0.5 * (ps.low + ps.high)
 
 
+def _not_understood(estimate: dict[str, Any]) -> str | None:
+    """The estimate's "cannot name a class" line (``error`` of the backend's record)."""
+    return estimate.get("error") or (estimate.get("estimate") or {}).get("error")
+
+
 def resolve_material(
     cls_given: str | None,
     given: dict[str, float],
@@ -71,18 +76,32 @@ def resolve_material(
     range table estimates are clamped into and written values are checked against
     (``extended``, ``paper``; None: the active one, ``catalog.active_ranges()``).
 
+    An estimate whose backend could not name a class (its record's ``error``: the kb
+    understood too little of the prompt) is refused with that line as a
+    :class:`UserInputError` unless the config or the params file gives the class; then
+    none of its values is used (the missing fields take the range centre, with one
+    warning line).
+
     Returns ``{"material": MaterialParams, "clamps": [dict], "warnings": [str],
     "range_notes": [dict], "sources": {name: str}, "overrides": given,
     "class_override": bool}``. ``clamps`` lists every substitution (estimate clamps
     included) with ``kind`` and ``source``; ``warnings`` one line per value used as
     written outside its range.
     """
+    guess_dropped = None
+    if estimate is not None and _not_understood(estimate) and (cls_given or base is not None):
+        # The class is given: the estimate (a guess by sentence similarity) gives nothing.
+        guess_dropped, estimate = estimate, None
     base_name = (base or {}).get("origin", "params file")
     est_name = (estimate or {}).get("backend", "estimate")
     start = base if base is not None else estimate
     start_name = base_name if base is not None else est_name
     if cls_given is not None:
         cls = normalise_class(cls_given, field=f"{config_origin}.class")
+    elif base is None and estimate is not None and _not_understood(estimate):
+        # The kb understood too little of the prompt to name a class (issue 27): its
+        # guess by sentence similarity is not passed off as an answer.
+        raise UserInputError(_not_understood(estimate))
     elif start is not None and start.get("class") is not None:
         cls = normalise_class(start["class"], field=f"{start_name}.class")
     else:
@@ -178,11 +197,20 @@ def resolve_material(
             )
         )
     notes = range_notes(params, fields=set(written), table=table)
+    dropped = []
+    if guess_dropped is not None:
+        centred = [n for n, src in sources.items() if src.startswith("range centre")]
+        if centred:
+            dropped.append(
+                f"warning: {guess_dropped.get('backend', 'kb')} backend: no word of the prompt "
+                f"names a material it knows; {', '.join(centred)} of {cls} from the centre "
+                "of the class range (give them in the config)"
+            )
     origin_of = {n: (config_origin if sources[n] == "config" else base_name) for n in written}
     return {
         "material": params,
         "clamps": [c.to_dict() for c in prior + clamps],
-        "warnings": [r.text(origin_of[r.field].rsplit(".", 0)[0]) for r in notes],
+        "warnings": [r.text(origin_of[r.field].rsplit(".", 0)[0]) for r in notes] + dropped,
         "range_notes": [r.to_dict() for r in notes],
         "sources": sources,
         "overrides": dict(given),
