@@ -2,17 +2,20 @@
 
 Runs, on one CUDA GPU, in at most ``--budget-s`` seconds (default 525, inside 9 minutes):
 
-- ``cuda_tests``: the CUDA-marked tests (``pytest -m cuda`` on the files that hold them);
+- ``cuda_tests``: the CUDA-marked tests but gsplat's (``pytest -m cuda -k "not gsplat"``
+  on the files that hold them);
 - ``mpm_20k``, ``mpm_100k``, ``mpm_1m``: the MLS-MPM forward and checkpointed full
   backward of ``motionphysics bench mpm`` on CUDA and on the CPU, and their agreement
   (positions after one frame, every parameter gradient);
-- ``render``: gsplat (CUDA) against our rasterisers (``torch`` backend on CUDA, ``warp``
-  backend on the CPU): times and agreement of images and gradients;
 - ``prior_cogvideox_5b`` (bf16), ``prior_modelscope`` (fp16): ``bench prior --size full
   --random-weights --device cuda``: seconds per LMD iteration (the prior's part) and peak
   GPU memory, against the paper's 28 s per iteration on an A100 80 GB;
-- ``motion_prior``: training throughput of the embedded ``motion`` prior on CUDA, when
-  this build has one (otherwise skipped with a line saying so).
+- ``gsplat_build``: gsplat compiles its CUDA extension on first import (minutes);
+  ``gsplat_tests``: then its CUDA test;
+- ``render``: gsplat (CUDA) against our rasterisers (``torch`` backend on CUDA, ``warp``
+  backend on the CPU): times and agreement of images and gradients;
+- ``motion_prior``: training throughput of the embedded ``motion`` prior on CUDA, once
+  ``prior train`` trains it (otherwise skipped with a line saying so).
 
 Each part runs in its own process with its own time limit (its process group is killed
 when the limit passes), so one hung part cannot eat the budget; a failure is recorded,
@@ -352,6 +355,13 @@ def _run_one(part: Part, rec: dict, limit: float, python: str, env: dict, work: 
         except subprocess.TimeoutExpired:
             _kill_group(proc)
             rc, timed_out = proc.returncode, True
+        except BaseException:  # Ctrl-C: take the part down with us
+            _kill_group(proc)
+            raise
+        try:  # whatever the part left running (workers, compilers) ends with it
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
     rec["seconds"] = round(time.monotonic() - t0, 2)
     payload: dict = {}
     if result_path.exists():
@@ -377,21 +387,24 @@ def _run_one(part: Part, rec: dict, limit: float, python: str, env: dict, work: 
 
 # ----------------------------------------------------------------------------- environment
 def cuda_device_count() -> int | None:
-    """GPUs the CUDA driver sees (None: no driver). No torch, no output."""
+    """GPUs the CUDA driver sees: None without a driver, 0 when it reports no device
+    (CUDA_ERROR_NO_DEVICE), -1 when it fails otherwise (then torch is asked). No torch,
+    no output."""
     for name in ("libcuda.so.1", "libcuda.so"):
         try:
             lib = ctypes.CDLL(name)
         except OSError:
             continue
         try:
-            if lib.cuInit(0) != 0:
+            err = lib.cuInit(0)
+            if err == 100:  # CUDA_ERROR_NO_DEVICE
                 return 0
             count = ctypes.c_int(0)
-            if lib.cuDeviceGetCount(ctypes.byref(count)) != 0:
-                return 0
+            if err != 0 or lib.cuDeviceGetCount(ctypes.byref(count)) != 0:
+                return -1
             return int(count.value)
         except AttributeError:
-            return 0
+            return -1
     return None
 
 
@@ -478,7 +491,8 @@ def child_env(site: Path | None) -> dict[str, str]:
 
 
 def describe_python(info: dict) -> str:
-    """``torch 2.11.0+cu130 (CUDA)`` / ``torch 2.13.0 (no CUDA device)`` / ``no torch``."""
+    """``PYTHON: torch V, sees GPU`` / ``..., CPU build`` / ``..., sees no device`` /
+    ``PYTHON: no torch`` (or why the probe failed)."""
     mods = info.get("modules") or {}
     if not mods.get("torch"):
         return f"{info.get('command', info.get('executable'))}: " + (
@@ -1325,7 +1339,7 @@ def run_check(
     gpus = cuda_device_count()
     if gpus is None and shutil.which("nvidia-smi"):
         gpus = -1  # the driver library is not on the loader's path, but a GPU may be: ask torch
-    if not gpus:
+    if not gpus:  # None or 0
         why = (
             "no NVIDIA driver: libcuda is not loadable"
             if gpus is None
@@ -1337,7 +1351,7 @@ def run_check(
     probes = [probe_python(c, env) for c in candidate_pythons(python)]
     chosen = next((p for p in probes if p.get("cuda")), None)
     if chosen is None:
-        what = "nvidia-smi is here" if gpus < 0 else f"the driver sees {gpus} GPU(s)"
+        what = "a CUDA driver is here" if gpus < 0 else f"the driver sees {gpus} GPU(s)"
         print(
             f"gpu-check: {what} but no Python here whose torch sees a GPU ("
             + "; ".join(describe_python(p) for p in probes)
