@@ -1182,12 +1182,17 @@ def part_prior(ctx: PartContext, model: str, repeats: int = 3) -> dict:
 
 
 def part_motion_prior(
-    ctx: PartContext, clips: int = 64, batch: int = 32, steps: tuple[int, int] = (10, 510)
+    ctx: PartContext,
+    clips: int = 64,
+    batch: int = 64,
+    steps: tuple[int, int] = (10, 510),
+    device: str = "cuda",
 ) -> dict:
     """Training throughput of the ``motion`` prior on CUDA: ``prior data`` (CPU) for a
     few clips, one untimed ``prior train --device cuda`` (caches the clips' features),
-    then two step counts; steps/s is the difference of steps over the difference of wall
-    time, so the start-up (imports, text encoder, data) cancels out."""
+    then two step counts; steps/s is the difference of steps over the difference of the
+    training loop's own time (``time_s`` of its last JSON line; the wall clock when it
+    prints none), so the start-up (imports, text encoder, data) cancels out."""
     from motionphysics.priors import PRIORS
 
     if "motion" not in PRIORS:
@@ -1208,27 +1213,57 @@ def part_motion_prior(
         )
     data = ctx.scratch / "data"
     cli = [sys.executable, "-m", "motionphysics", "prior"]
+    which = ["--prior", "motion"] if "--prior" in command.read_text() else []
     workers = str(max(1, min(8, (os.cpu_count() or 2) - 1)))
     t0 = time.perf_counter()
     subprocess.run(
-        [*cli, "data", str(data), "--clips", str(clips), "--workers", workers], check=True
+        [*cli, "data", str(data), *which, "--clips", str(clips), "--workers", workers],
+        check=True,
     )
-    r: dict = {"clips": clips, "batch": batch, "data_s": time.perf_counter() - t0}
+    r: dict = {"device": device, "clips": clips, "batch": batch}
+    r["data_s"] = time.perf_counter() - t0
     ctx.save(r)
 
-    def train(n: int) -> float:
-        ckpt = ctx.scratch / f"steps{n}.pt"
-        args = ["train", str(data), "--device", "cuda", "--steps", str(n), "--batch", str(batch)]
+    def train(n: int, label: str) -> tuple[float, float | None]:
+        """(wall seconds, the training loop's own seconds from its last JSON line)."""
+        ckpt = ctx.scratch / f"{label}.pt"
+        args = ["train", str(data), *which, "--device", device, "--steps", str(n)]
+        args += ["--batch", str(batch), "--budget-min", "30", "--out", str(ckpt)]
         t0 = time.perf_counter()
-        subprocess.run([*cli, *args, "--budget-min", "30", "--out", str(ckpt)], check=True)
-        return time.perf_counter() - t0
+        proc = subprocess.run([*cli, *args], capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        sys.stdout.write(proc.stdout + proc.stderr)
+        if proc.returncode != 0:
+            raise RuntimeError(f"prior train --steps {n}: exit status {proc.returncode}")
+        return wall, _loop_seconds(proc.stdout)
 
-    r["warmup_wall_s"] = train(steps[0])
-    walls = [train(n) for n in steps]
-    r["train_wall_s"] = dict(zip(map(str, steps), walls, strict=True))
-    r["steps_per_s"] = (steps[1] - steps[0]) / (walls[1] - walls[0])
+    r["warmup_wall_s"] = train(steps[0], "warmup")[0]
+    (w0, t0_), (w1, t1_) = (train(n, f"steps{n}") for n in steps)
+    r["train_wall_s"] = {str(steps[0]): w0, str(steps[1]): w1}
+    r["steps_per_s_wall"] = (steps[1] - steps[0]) / (w1 - w0)
+    if t0_ is not None and t1_ is not None:
+        r["train_loop_s"] = {str(steps[0]): t0_, str(steps[1]): t1_}
+        r["steps_per_s"] = (steps[1] - steps[0]) / (t1_ - t0_)
+    else:  # the command printed no loop time: the wall clock's difference
+        r["steps_per_s"] = r["steps_per_s_wall"]
     r["clips_per_s"] = r["steps_per_s"] * batch
     return r
+
+
+def _loop_seconds(stdout: str) -> float | None:
+    """``time_s`` of the last JSON line of ``prior train`` that has one."""
+    for line in reversed(stdout.splitlines()):
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            continue
+        rec = rec.get("final", rec) if isinstance(rec, dict) else {}
+        if isinstance(rec, dict) and isinstance(rec.get("time_s"), (int, float)):
+            return float(rec["time_s"])
+    return None
 
 
 # ----------------------------------------------------------------------------- main

