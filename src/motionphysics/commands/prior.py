@@ -1,13 +1,20 @@
-"""motionphysics prior data|train|eval: build the embedded tiny motion prior.
+"""motionphysics prior data|train|eval|export: build the embedded priors.
 
-prior data OUT       simulate and render training clips (our simulator and renderer)
-                     into uint8 shards under OUT; deterministic per --seed, resumable
-                     (shards already there are kept), parallel over --workers.
-prior train DATA     train the tiny text-to-video diffusion prior on those shards for
-                     --budget-min minutes; --resume continues a checkpoint exactly
-                     (weights, EMA, optimiser, RNG, data position).
-prior eval CKPT DATA caption discrimination over the motion groups on held-out
-                     clips with held-out phrasings (prints JSON).
+--prior motion (the default): the motion prior, a diffusion model over per-frame
+motion features of simulated clips.
+--prior tiny: the older pixel prior (rendered 32x32 clips).
+
+prior data OUT       simulate training clips (motion: the states of a particle subset;
+                     tiny: rendered uint8 frames) into shards under OUT; deterministic
+                     per --seed, resumable (shards already there are kept), parallel
+                     over --workers.
+prior train DATA     train the prior on those shards for --budget-min minutes or
+                     --steps steps; --resume continues a checkpoint exactly (weights,
+                     EMA, optimiser, RNG, data position).
+prior eval CKPT DATA caption discrimination over the motion groups on held-out clips
+                     with held-out phrasings (motion: and, with --train-data, a
+                     text-free classifier on the features); prints JSON.
+prior export CKPT DST  the shippable weights of a motion checkpoint (EMA, statistics).
 
 The shipped weights and their measured limits are described in the model card
 beside them in the package (priors/, the model card file).
@@ -34,8 +41,12 @@ def _positive(kind):
 
 
 def _data(args) -> int:
-    from motionphysics.priors.tiny_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
     from motionphysics.progress import Progress
+
+    if args.prior == "motion":
+        from motionphysics.priors.motion_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
+    else:
+        from motionphysics.priors.tiny_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
 
     shapes = HELD_OUT_SHAPES if args.held_out_shapes else TRAIN_SHAPES
     with Progress(quiet=args.quiet, verbose=args.verbose) as progress:
@@ -61,23 +72,51 @@ def _data(args) -> int:
     return 0
 
 
+def _train_motion(args) -> int:
+    from pathlib import Path
+
+    from motionphysics.priors.motion_train import MotionTrainOptions, train
+
+    out = Path(args.out) if args.out else Path(args.data) / "motion_prior.pt"
+    opts = MotionTrainOptions(
+        budget_min=args.budget_min,
+        max_steps=args.steps,
+        batch=args.batch or 64,
+        seed=args.seed,
+        device=args.device,
+        size="cuda" if args.device == "cuda" else "cpu",
+        threads=args.threads,
+        contrast=0.5 if args.contrast is None else args.contrast,
+    )
+
+    def log(text: str) -> None:
+        if not args.quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    rec = train(args.data, out, opts, resume=args.resume, log=log)
+    print(json.dumps({"checkpoint": str(out), **rec}))
+    return 0
+
+
 def _train(args) -> int:
     from pathlib import Path
 
+    if args.prior == "motion":
+        return _train_motion(args)
     from motionphysics.priors.tiny_train import TrainOptions, train
 
     out = Path(args.out) if args.out else Path(args.data) / "tiny_prior.pt"
     opts = TrainOptions(
         budget_min=args.budget_min,
         max_steps=args.steps,
-        batch=args.batch,
+        batch=args.batch or 8,
         seed=args.seed,
         device=args.device,
         size="cuda" if args.device == "cuda" else "cpu",
         threads=args.threads,
         reload_data=args.reload_data,
         balance=not args.no_balance,
-        contrast=args.contrast,
+        contrast=args.contrast or 0.0,
     )
 
     def log(text: str) -> None:
@@ -89,8 +128,39 @@ def _train(args) -> int:
     return 0
 
 
+def _eval_motion(args) -> int:
+    import torch
+
+    from motionphysics.priors.motion import MotionPrior
+    from motionphysics.priors.motion_train import discrimination, feature_classifier, prepare
+
+    torch.set_num_threads(args.threads or torch.get_num_threads())
+    prior = MotionPrior.from_pretrained(args.checkpoint)
+    held = prepare(args.data, held_out=True)
+    res = {
+        "discrimination": discrimination(
+            prior, held, held_out=not args.train_phrasings, max_clips=args.max_clips
+        )
+    }
+    if args.train_data:
+        res["feature_classifier"] = feature_classifier(prepare(args.train_data), held)
+    print(json.dumps(res, indent=1))
+    return 0
+
+
+def _export(args) -> int:
+    from motionphysics.priors.motion_train import export_weights
+
+    dst = export_weights(args.checkpoint, args.dst)
+    print(f"{dst}: {dst.stat().st_size / 1e6:.2f} MB")
+    return 0
+
+
 def _eval(args) -> int:
     import torch
+
+    if args.prior == "motion":
+        return _eval_motion(args)
 
     from motionphysics.priors.tiny import TinyPrior
     from motionphysics.priors.tiny_data import load_shards
@@ -114,7 +184,7 @@ def _eval(args) -> int:
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "prior",
-        help="build the embedded tiny motion prior (data, train, eval)",
+        help="build the embedded motion prior (data, train, eval, export)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -124,8 +194,9 @@ def register(subparsers) -> None:
     d = sub.add_parser(
         "data",
         help="simulate and render training clips into shards",
-        description="Simulate and render training clips into uint8 shards (deterministic per seed, resumable).",
+        description="Simulate training clips into shards (deterministic per seed, resumable).",
     )
+    _which(d)
     d.add_argument("out", metavar="OUT", help="output directory (shards are added/kept)")
     d.add_argument("--clips", type=_positive(int), default=1000, help="number of clips")
     d.add_argument("--workers", type=_positive(int), default=1, help="processes")
@@ -140,15 +211,22 @@ def register(subparsers) -> None:
     t = sub.add_parser(
         "train",
         help="train the tiny prior on shards",
-        description="Train the tiny text-to-video prior on shards, time-budgeted and resumable.",
+        description="Train the prior on shards, time- or step-budgeted and resumable.",
     )
+    _which(t)
     t.add_argument("data", metavar="DATA", help="directory of shards (`prior data`)")
     t.add_argument("--budget-min", type=_positive(float), default=30.0, help="minutes to train")
     t.add_argument("--steps", type=_positive(int), default=None, help="stop at this many steps")
-    t.add_argument("--batch", type=_positive(int), default=8, help="clips per training step")
+    t.add_argument(
+        "--batch", type=_positive(int), default=None, help="clips per step (motion 64, tiny 8)"
+    )
     t.add_argument("--seed", type=int, default=0, help="training seed (init, noise, order)")
     t.add_argument("--resume", action="store_true", help="continue the checkpoint at --out")
-    t.add_argument("--out", metavar="PATH", help="checkpoint file (default DATA/tiny_prior.pt)")
+    t.add_argument(
+        "--out",
+        metavar="PATH",
+        help="checkpoint file (default DATA/motion_prior.pt or tiny_prior.pt)",
+    )
     t.add_argument("--eval-data", metavar="DIR", help="held-out shards for the held-out metric")
     t.add_argument(
         "--reload-data",
@@ -162,10 +240,10 @@ def register(subparsers) -> None:
     t.add_argument(
         "--contrast",
         type=float,
-        default=0.0,
+        default=None,
         metavar="W",
         help="weight of the caption-contrast hinge (own-group prompt must denoise better than "
-        "another group's, at the same noise); 0 = plain denoising",
+        "another group's, at the same noise); 0 = plain denoising (motion 0.5, tiny 0)",
     )
     t.add_argument(
         "--no-balance",
@@ -179,6 +257,7 @@ def register(subparsers) -> None:
         help="caption discrimination on held-out clips",
         description="Caption discrimination over the motion groups on held-out clips (JSON).",
     )
+    _which(e)
     e.add_argument("checkpoint", metavar="CKPT", help="weights file (`prior train`)")
     e.add_argument("data", metavar="DATA", help="held-out shards")
     e.add_argument(
@@ -186,4 +265,27 @@ def register(subparsers) -> None:
     )
     e.add_argument("--train-phrasings", action="store_true", help="use training phrasings")
     e.add_argument("--threads", type=_positive(int), default=None, help="torch CPU threads")
+    e.add_argument(
+        "--train-data",
+        metavar="DIR",
+        help="motion: training shards; adds a text-free classifier on the features",
+    )
     e.set_defaults(func=_eval)
+
+    x = sub.add_parser(
+        "export",
+        help="shippable weights of a motion prior checkpoint",
+        description="Write the shippable weights (EMA, feature statistics, meta) of a checkpoint.",
+    )
+    x.add_argument("checkpoint", metavar="CKPT", help="training checkpoint (`prior train`)")
+    x.add_argument("dst", metavar="DST", help="weights file to write")
+    x.set_defaults(func=_export)
+
+
+def _which(p) -> None:
+    p.add_argument(
+        "--prior",
+        choices=("motion", "tiny"),
+        default="motion",
+        help="which embedded prior (default motion)",
+    )

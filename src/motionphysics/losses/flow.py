@@ -24,7 +24,7 @@ from torch import Tensor
 
 from motionphysics.losses.base import Loss, LossBuildContext, LossContext, Prediction
 from motionphysics.losses.optical_flow import RaftFlow, horn_schunck
-from motionphysics.losses.prior_common import need_prior, reference_clip
+from motionphysics.losses.prior_common import need_frames_prior, need_prior, reference_clip
 from motionphysics.priors.base import resample_frames
 
 __all__ = ["FlowLoss"]
@@ -71,6 +71,7 @@ class FlowLoss(Loss):
         duration_s: float | None = None,
     ):
         self.opts = o = options or self.Options()
+        need_frames_prior(self.name, prior)
         self.prior = need_prior(self.name, prior, prompt)
         self._raft = RaftFlow(o.raft_weights, self.prior.device) if o.estimator == "raft" else None
         ref = reference_clip(

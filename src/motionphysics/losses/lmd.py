@@ -47,8 +47,17 @@ denoise" pull of an imperfect prior and ``classifier_score`` removes it.
 
 The Gaussian perturbation (paper Suppl. D: centres ``+ ε N(0, I)``, SH coefficients
 ``+ 2ε N(0, I)``, ε = 0.1, drawn once per iteration and used only for this loss's render,
-never for the simulation or the output) is a render-side concern: this loss exposes it as
-:attr:`LmdLoss.render_perturbation` for the refinement stage to apply.
+never for the simulation or the output) is a render-side concern for a prior that
+observes frames: this loss exposes it as :attr:`LmdLoss.render_perturbation` for the
+refinement stage to apply. For a prior that observes the simulated states (the motion
+prior) the loss applies the geometry half itself: per iteration one offset
+``ε L N(0, I)`` per particle [m] (``L``: the largest side of the rest state), drawn
+from the loop's generator, is added to the observed positions and to the rest state;
+there is no appearance to perturb.
+
+What the loss reads of the prediction follows the prior (``prior.observes``): rendered
+frames, or the simulated states of the supervised frames (then ``needs_render`` is
+False and the loop does not render).
 
 The extractor, its EMA copy and its optimiser are in :meth:`LmdLoss.state_dict`, so a
 resumed run continues exactly. This module must not render or simulate.
@@ -68,8 +77,9 @@ from motionphysics.losses.base import Loss, LossBuildContext, LossContext, Predi
 from motionphysics.losses.prior_common import (
     check_t_range,
     draw_t_noise,
-    encode,
     need_prior,
+    observe,
+    observes_states,
     resolve_negative,
     step_weight,
 )
@@ -191,6 +201,9 @@ class LmdLoss(Loss):
         self.negative_prompt = resolve_negative(self.opts.negative_prompt, prompt)
         self.prior = need_prior(self.name, prior, prompt, self.negative_prompt)
         check_t_range(self.name, self.prior, self.opts.t_min, self.opts.t_max)
+        states = observes_states(self.prior)
+        self.needs_render = not states  # what the loop must produce for this prior
+        self.needs_states = states
         channels = int(self.prior.latent_shape()[2])
         self.device = torch.device(getattr(self.prior, "device", device))
         self.extractor = MotionExtractor(
@@ -219,11 +232,19 @@ class LmdLoss(Loss):
     def _value(self, y_pred: Tensor, y_target: Tensor, w: Tensor) -> Tensor:
         return w * charbonnier(y_pred - y_target, self.opts.beta, self.opts.charbonnier)
 
+    def _state_offset(self, ctx: LossContext) -> Tensor | None:
+        """The geometry perturbation of a states prior's observation: [P, 3] m, or None."""
+        if not self.needs_states or self.render_perturbation is None:
+            return None
+        rest = self.prior.scene.rest
+        size = float((rest.max(0).values - rest.min(0).values).max())
+        noise = torch.randn(tuple(rest.shape), generator=ctx.rng, dtype=torch.float32)
+        return self.render_perturbation.centers * size * noise
+
     def __call__(self, pred: Prediction, ctx: LossContext) -> Tensor:
-        if pred.rgb is None:
-            raise ValueError("lmd needs rendered frames (Prediction.rgb)")
         prior, o = self.prior, self.opts
-        z0 = encode(prior, pred.rgb, ctx.rng)  # [1, F_lat, C, h, w], grad to the renders
+        # [1, F_lat, C, h, w], grad to the renders or the states
+        z0 = observe(prior, pred, ctx.rng, self._state_offset(ctx))
         prior.set_prompt(self.prompt, self.negative_prompt)  # a shared prior may have another
         pdt = next(self.extractor.parameters()).dtype  # float32 (float64 in gradient checks)
         draws = []  # (t, w, y_target) per diffusion draw

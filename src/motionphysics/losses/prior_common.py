@@ -16,7 +16,16 @@ from torch import Tensor
 
 from motionphysics.errors import UserInputError
 
-__all__ = ["draw_t_noise", "encode", "need_prior", "reference_clip", "step_weight"]
+__all__ = [
+    "draw_t_noise",
+    "encode",
+    "need_frames_prior",
+    "need_prior",
+    "observe",
+    "observes_states",
+    "reference_clip",
+    "step_weight",
+]
 
 
 def resolve_negative(negative_prompt: str, prompt: str) -> str:
@@ -34,10 +43,41 @@ def need_prior(loss: str, prior, prompt: str, negative_prompt: str = ""):
     against) set; a one-line error without one."""
     if prior is None:
         raise UserInputError(
-            f"optimize.loss {loss!r} needs a video prior; set --prior cogvideox|modelscope|tiny"
+            f"optimize.loss {loss!r} needs a motion prior; set --prior motion|cogvideox|modelscope"
         )
     prior.set_prompt(prompt, negative_prompt)
     return prior
+
+
+def observes_states(prior) -> bool:
+    """True when ``prior`` observes the simulated states (the loop need not render)."""
+    return getattr(prior, "observes", "frames") == "states"
+
+
+def need_frames_prior(loss: str, prior) -> None:
+    """A one-line error when a loss that compares pixels is given a prior that sees states."""
+    if prior is not None and observes_states(prior):
+        raise UserInputError(
+            f"optimize.loss {loss!r} compares rendered frames with a clip the prior generates; "
+            f"prior {getattr(prior, 'name', '?')!r} observes simulated states, not frames "
+            "(use lmd or sds with it, or a frames prior: cogvideox, modelscope)"
+        )
+
+
+def observe(prior, pred, rng: torch.Generator | None, offset: Tensor | None = None) -> Tensor:
+    """What ``prior`` observes of the prediction ``pred`` (a ``losses.base.Prediction``),
+    encoded to its latents with grad: the rendered frames (``pred.rgb``), or the
+    simulated states (``pred.xs``, ``pred.Fs`` at ``pred.frame_indices``) for a prior
+    that observes states. ``offset`` [P, 3] m: a geometry perturbation added to every
+    observed position and to the rest state (states priors only)."""
+    if observes_states(prior):
+        if pred.xs is None or pred.Fs is None:
+            raise ValueError(f"prior {prior.name} observes simulated states (Prediction.xs, Fs)")
+        xs = pred.xs if offset is None else pred.xs + offset.to(pred.xs)
+        return prior.encode_states(xs, pred.Fs, tuple(pred.frame_indices), offset=offset)
+    if pred.rgb is None:
+        raise ValueError("this prior observes rendered frames (Prediction.rgb)")
+    return encode(prior, pred.rgb, rng)
 
 
 def encode(prior, frames: Tensor, rng: torch.Generator | None) -> Tensor:

@@ -12,7 +12,8 @@ DreamPhysics' guidance ``ε_c + 100 (ε_c − ε_u)`` is 101 in the diffusers fo
 from v̂ without dividing by √ᾱ. ``form: classifier_score`` uses ``ε̂ − ε̂_uncond`` (the
 guided difference) instead of ``ε̂ − ε`` (classifier score distillation).
 
-This module must not render or simulate.
+The prior's observation (rendered frames, or the simulated states for a prior that
+observes states) is what ``z0`` encodes. This module must not render or simulate.
 """
 
 from __future__ import annotations
@@ -27,8 +28,9 @@ from motionphysics.losses.base import Loss, LossBuildContext, LossContext, Predi
 from motionphysics.losses.prior_common import (
     check_t_range,
     draw_t_noise,
-    encode,
     need_prior,
+    observe,
+    observes_states,
     resolve_negative,
     step_weight,
 )
@@ -74,6 +76,8 @@ class SdsLoss(Loss):
         self.negative_prompt = resolve_negative(self.opts.negative_prompt, prompt)
         self.prior = need_prior(self.name, prior, prompt, self.negative_prompt)
         check_t_range(self.name, self.prior, self.opts.t_min, self.opts.t_max)
+        self.needs_render = not observes_states(self.prior)  # frames, or the states
+        self.needs_states = not self.needs_render
         self._last: dict[str, float] = {}
 
     @classmethod
@@ -81,10 +85,8 @@ class SdsLoss(Loss):
         return cls(ctx.prior, ctx.prompt, options)
 
     def __call__(self, pred: Prediction, ctx: LossContext) -> Tensor:
-        if pred.rgb is None:
-            raise ValueError("sds needs rendered frames (Prediction.rgb)")
         prior, o = self.prior, self.opts
-        z0 = encode(prior, pred.rgb, ctx.rng)  # [1, F_lat, C, h, w]
+        z0 = observe(prior, pred, ctx.rng)  # [1, F_lat, C, h, w]: the frames or the states
         t, noise = draw_t_noise(ctx.rng, tuple(z0.shape), o.t_min, o.t_max, z0.device)
         z_t = prior.add_noise(z0.detach(), noise, t)
         prior.set_prompt(self.prompt, self.negative_prompt)  # a shared prior may have another

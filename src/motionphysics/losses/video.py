@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor
 
 from motionphysics.losses.base import Loss, LossBuildContext, LossContext, Prediction
-from motionphysics.losses.prior_common import need_prior, reference_clip
+from motionphysics.losses.prior_common import need_frames_prior, need_prior, reference_clip
 from motionphysics.losses.video_match import ssim_map
 from motionphysics.priors.base import resample_frames
 
@@ -54,6 +54,7 @@ class VideoLoss(Loss):
         duration_s: float | None = None,
     ):
         self.opts = o = options or self.Options()
+        need_frames_prior(self.name, prior)
         self.prior = need_prior(self.name, prior, prompt)
         self.reference = reference_clip(
             self.prior,

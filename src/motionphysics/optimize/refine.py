@@ -288,6 +288,44 @@ def _quiet_hub_progress() -> None:
             pass
 
 
+def scene_context(parts):
+    """The :class:`~motionphysics.priors.base.SceneContext` of an assembly: the rest
+    positions of its particles, the ground under them, the gravity and the frame time
+    (what a prior that observes states measures the motion against)."""
+    import numpy as np
+    import torch
+
+    from motionphysics.assembly import _ground_height, _up
+    from motionphysics.priors.base import SceneContext
+
+    cfg = parts.cfg
+    rest = torch.as_tensor(np.asarray(parts.sim_scene.particles), dtype=torch.float32)
+    up = _up(cfg)
+    centre = rest.double().mean(0).numpy()
+    ground = _ground_height(cfg, centre, up)
+    return SceneContext(
+        rest=rest,
+        ground=None if ground is None else float(ground),
+        gravity=tuple(float(v) for v in cfg.sim.gravity),
+        frame_dt=float(cfg.sim.frame_dt),
+    )
+
+
+def _states_perturbation(loss, prior) -> dict[str, Any] | None:
+    """params.json's ``perturbation`` for an lmd term whose prior observes states."""
+    if prior is None or getattr(prior, "observes", "frames") != "states":
+        return None
+    for _, _, lo in loss.terms:
+        p = getattr(lo, "render_perturbation", None)
+        if p is not None:
+            return {
+                "centers_epsilon": p.centers,
+                "applies_to": "the observed particle positions and rest state (the prior "
+                "observes states; there is no appearance to perturb)",
+            }
+    return None
+
+
 def _side_by_side(problem, start, final) -> dict[str, dict[str, Any]]:
     """``{name: {"initial", "final", "unit", "optimised"}}`` of the class's parameters
     (a per-particle final value as ``{"mean", "min", "max"}``)."""
@@ -332,6 +370,8 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         _quiet_hub_progress()  # the run's own display shows the stage; no tqdm bars
         prior = load_prior(name, cfg.optimize.prior_path, device=parts.device)
         prior.set_prompt(cfg.prompt)
+        if getattr(prior, "observes", "frames") == "states":
+            prior.set_scene(scene_context(parts))
     bctx = LossBuildContext(
         prompt=cfg.prompt,
         prior=prior,
@@ -353,7 +393,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         if getattr(lo, "render_perturbation", None) is not None
     ]
     perturbed = None
-    if perturbations and problem.renderer is not None:
+    if perturbations and problem.renderer is not None and loss.needs_render:
         # One render feeds every loss of the sum: the perturbation of the first loss
         # that asks for one (a second lmd term would share it).
         perturbed = PerturbedRenderer(problem.renderer, perturbations[0], int(cfg.optimize.seed))
@@ -415,7 +455,8 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
             for n, _, lo in loss.terms
             if hasattr(getattr(lo, "opts", None), "guidance")
         },
-        "perturbation": (
+        "perturbation": _states_perturbation(loss, prior)
+        or (
             {
                 "centers_std": perturbed.centers * perturbed.length,
                 "centers_epsilon": perturbed.centers,

