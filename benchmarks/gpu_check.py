@@ -760,7 +760,10 @@ def _figures(p: dict) -> str:
             f"(paper: {PAPER_ITERATION_S:g} s, A100 80 GB)"
         )
     if kind == "motion" and "steps_per_s" in r:
-        return f"{_g(r['steps_per_s'])} steps/s at batch {r.get('batch')}"
+        return (
+            f"{_g(r['steps_per_s'])} steps/s ({_g(r.get('clips_per_s'))} clips/s) at batch "
+            f"{r.get('batch')}"
+        )
     simple = (int, float, str)
     return ", ".join(f"{k} {_g(v)}" for k, v in r.items() if isinstance(v, simple))[:160]
 
@@ -1104,15 +1107,16 @@ def _time_raster(scene, cam, weight, backend: str, device: str, repeats: int) ->
             torch.cuda.synchronize()
 
     w = weight.to(device)
+    on_device = [t.to(device) for t in scene]  # copies to the GPU are not timed
     fwd, both, out, leaves = [], [], None, None
     for k in range(repeats + 1):  # the first run loads kernels / compiles: untimed
         with torch.no_grad():
             sync()
             t0 = time.perf_counter()
-            rasterize(*[t.to(device) for t in scene], cam, (1.0, 1.0, 1.0), backend=backend)
+            rasterize(*on_device, cam, (1.0, 1.0, 1.0), backend=backend)
             sync()
             t1 = time.perf_counter()
-        leaves = [t.to(device).clone().requires_grad_(True) for t in scene]
+        leaves = [t.clone().requires_grad_(True) for t in on_device]
         sync()
         t2 = time.perf_counter()
         out = rasterize(*leaves, cam, (1.0, 1.0, 1.0), backend=backend)

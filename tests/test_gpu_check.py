@@ -694,3 +694,24 @@ def test_motion_prior_part_measures_a_few_steps_on_the_cpu(tmp_path):
     assert r["device"] == "cpu" and r["clips"] == 4 and r["batch"] == 4
     assert set(r["train_loop_s"]) == {"1", "5"} and all(v > 0 for v in r["train_loop_s"].values())
     assert r["steps_per_s"] == pytest.approx(4 / (r["train_loop_s"]["5"] - r["train_loop_s"]["1"]))
+
+
+def test_rasteriser_timing_returns_medians_images_and_gradients():
+    """The render part's timer on the CPU, our two rasterisers on a tiny scene: they
+    agree, as the render part expects of ours against gsplat."""
+    import torch
+
+    from motionphysics.render.bench import bench_camera, random_splats
+
+    scene, cam = random_splats(200, seed=0), bench_camera(24)
+    weight = torch.rand(24, 24, 3, generator=torch.Generator().manual_seed(1))
+    warp = gc._time_raster(scene, cam, weight, "warp", "cpu", 2)
+    twin = gc._time_raster(scene, cam, weight, "torch", "cpu", 1)
+    for r in (warp, twin):
+        assert r["forward_s"] > 0 and r["fwd_bwd_s"] > 0
+        assert r["rgb"].shape == (24, 24, 3) and r["grad_means"].shape == (200, 3)
+    assert (warp["rgb"] - twin["rgb"]).abs().max() < 1e-4
+    cos = torch.nn.functional.cosine_similarity(
+        warp["grad_means"].flatten(), twin["grad_means"].flatten(), dim=0
+    )
+    assert cos > 0.999
