@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 export MOTIONPHYSICS_CACHE ?= $(CURDIR)/.cache
 OUT ?= runs/demo
 
-.PHONY: demo test test-slow test-all lint bench gpu-check peers clean
+.PHONY: demo test test-slow test-all lint bench gpu-check peers clean prior
 
 $(BIN)/motionphysics: pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -48,6 +48,21 @@ gpu-check:
 
 peers:
 	bash benchmarks/setup_peers.sh
+
+# The embedded motion prior from nothing (priors/MODEL_CARD.md): simulated training and
+# held-out clips, training, the held-out measures, the shippable weights. Resumable: rerun
+# after an interruption. PRIOR_DATA holds the clips and the training checkpoint.
+PRIOR_DATA ?= $(MOTIONPHYSICS_CACHE)/motion-prior
+PRIOR_CLIPS ?= 1500
+PRIOR_MIN ?= 20
+prior: $(BIN)/motionphysics
+	$(BIN)/motionphysics prior data $(PRIOR_DATA)/train --clips $(PRIOR_CLIPS) --workers 2 --seed 0
+	$(BIN)/motionphysics prior data $(PRIOR_DATA)/held-out --clips 270 --workers 2 --seed 1 --held-out-shapes
+	$(BIN)/motionphysics prior train $(PRIOR_DATA)/train --out $(PRIOR_DATA)/motion_prior.pt \
+		--budget-min $(PRIOR_MIN) --threads 2 --resume
+	$(BIN)/motionphysics prior eval $(PRIOR_DATA)/motion_prior.pt $(PRIOR_DATA)/held-out \
+		--train-data $(PRIOR_DATA)/train > $(PRIOR_DATA)/eval.json
+	$(BIN)/motionphysics prior export $(PRIOR_DATA)/motion_prior.pt src/motionphysics/priors/motion_prior.pt
 
 clean:
 	rm -rf $(VENV) .cache runs

@@ -1,11 +1,14 @@
 """Does a prior move the parameters the way the words say? (issue 13's direction bar)
 
-For each scene and seed, two ``motionphysics run CONFIG --prior tiny --loss lmd`` runs
+For each scene and seed, two ``motionphysics run CONFIG --prior PRIOR --loss lmd`` runs
 start from the same material and differ only in the prompt: "stiff, bounces high" against
 "soft, wobbly, squashes" (class elastic, E optimised), and "thin runny water splashes"
 against "thick honey oozes slowly" (class newtonian, mu optimised). The result is read
 from each run's ``params.json``, as a user would read it. The bar: the stiff prompt's E at
-least 3x the soft prompt's, the thin prompt's mu at least 10x below the thick prompt's.
+least 3x the soft prompt's, the thin prompt's mu at least 10x below the thick prompt's; a third pair (plasticine,
+yield stress: "keeps its shape" against "squashes flat and stays flat", bar 3) with
+``--classes plasticine``. ``--prior`` picks the prior (default ``motion``, the embedded
+motion prior; ``tiny`` the pixel prior).
 
 ``--invariance`` instead runs one prompt on one shape in three textures and two geometry
 variants, with ``lmd`` and with ``sds``, and reports the spread (standard deviation) of
@@ -54,6 +57,13 @@ PAIRS = {
         "down": "Thin runny water shaped like a {obj} splashes and spreads thin",
         "bar": 10.0,
     },
+    "plasticine": {
+        "param": "tau_Y",
+        "start": {"class": "plasticine", "density": 1500, "E": 2.0e6, "nu": 0.3, "tau_Y": 2.0e4},
+        "up": "A hard clay {obj} is dropped and keeps its shape when it lands",
+        "down": "A soft clay {obj} is dropped, squashes flat and stays squashed",
+        "bar": 3.0,
+    },
 }
 
 
@@ -88,7 +98,9 @@ def _scenes(tmp: Path, which: list[str]) -> dict[str, dict]:
     return out
 
 
-def _config(scene: dict, pair: dict, prompt: str, loss: dict, iters: int, seed: int) -> dict:
+def _config(
+    scene: dict, pair: dict, prompt: str, loss: dict, iters: int, seed: int, prior: str = "motion"
+) -> dict:
     return {
         "scene": scene,
         "prompt": prompt,
@@ -106,7 +118,7 @@ def _config(scene: dict, pair: dict, prompt: str, loss: dict, iters: int, seed: 
         ],
         "camera": {"azimuth": 30, "elevation": 15, "width": 96, "height": 96},
         "optimize": {
-            "prior": "tiny",
+            "prior": prior,
             "losses": [loss],
             "iterations": iters,
             "seed": seed,
@@ -146,7 +158,9 @@ def direction(args, tmp: Path) -> dict:
                     loss = {"type": args.loss, **args.loss_options}
                     if args.contrast:
                         loss["negative_prompt"] = pair[other].format(obj=obj)
-                    cfg = _config(scene, pair, pair[side].format(obj=obj), loss, args.iters, seed)
+                    cfg = _config(
+                        scene, pair, pair[side].format(obj=obj), loss, args.iters, seed, args.prior
+                    )
                     key = (sname, cls, seed, side)
                     jobs.append((key, cfg, args.out / f"{len(jobs):03d}"))
     with ThreadPoolExecutor(args.workers) as pool:
@@ -173,6 +187,8 @@ def direction(args, tmp: Path) -> dict:
                         "ratio": ratio,
                         "bar": pair["bar"],
                         "pass": ratio >= pair["bar"],
+                        "up_moved_up": up["params"][name] > pair["start"][name],
+                        "down_moved_down": down["params"][name] < pair["start"][name],
                         "up_losses": up["losses"],
                         "down_losses": down["losses"],
                         "seconds": up["seconds"] + down["seconds"],
@@ -194,7 +210,9 @@ def invariance(args, tmp: Path) -> dict:
                 "max_particles": 1500,
             }
             loss = {"type": loss_type, **args.loss_options}
-            cfg = _config(scene, pair, pair["up"].format(obj="bird"), loss, args.iters, 0)
+            cfg = _config(
+                scene, pair, pair["up"].format(obj="bird"), loss, args.iters, 0, args.prior
+            )
             jobs.append(((loss_type, v), cfg, args.out / f"inv-{loss_type}-{v}"))
     with ThreadPoolExecutor(args.workers) as pool:
         futs = {key: pool.submit(_run, cfg, out, args.prior_path) for key, cfg, out in jobs}
@@ -218,7 +236,8 @@ def main() -> None:
     ap.add_argument("--loss", default="lmd", choices=["lmd", "sds"])
     ap.add_argument("--loss-options", type=json.loads, default={})
     ap.add_argument("--contrast", action="store_true", help="negative_prompt = the other prompt")
-    ap.add_argument("--prior-path", default=None, help="a tiny-prior checkpoint (default: shipped)")
+    ap.add_argument("--prior", default="motion", choices=["motion", "tiny"])
+    ap.add_argument("--prior-path", default=None, help="a prior checkpoint (default: shipped)")
     ap.add_argument("--invariance", action="store_true")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()

@@ -11,6 +11,7 @@ import torch
 from motionphysics.priors.motion_features import (
     FEATURE_NAMES,
     G0,
+    LOG_FLOOR,
     MotionScene,
     clip_features,
     frame_features,
@@ -59,13 +60,32 @@ def test_rigid_drop_moves_only_height_and_time():
     h = float(c0[2]) - 0.04 * torch.arange(T, dtype=torch.float64)
     torch.testing.assert_close(f[:, IDX["height"]], h / float(c0[2]), atol=1e-9, rtol=0)
     torch.testing.assert_close(f[:, IDX["height_size"]], h / L, atol=1e-9, rtol=0)
-    for name in ("drift", "vertical", "spread", "size", "shape", "strain", "volume"):
+    for name in ("drift", "vertical", "spread", "size", "volume"):
         assert f[:, IDX[name]].abs().max() < 1e-5, name
+    for name in ("shape", "strain"):  # log(LOG_FLOOR + ~0)
+        assert (f[:, IDX[name]].exp() - LOG_FLOOR).abs().max() < 1e-4, name
+    # falling all the way: no rebound
+    assert f[:, IDX["rebound"]].abs().max() < 1e-9
     # the underside falls with the centroid
     bottom = f[:, IDX["bottom"]]
     torch.testing.assert_close(bottom[1:] - bottom[:-1], torch.full((T - 1,), -0.04 / L).double())
     assert torch.allclose(f[:, IDX["time"]], torch.log1p(t * math.sqrt(G0 / L)))
     assert torch.allclose(f[:, IDX["gravity"]], torch.ones(T, dtype=torch.float64))
+
+
+def test_a_bounce_reads_its_rebound():
+    rest = _cloud()
+    scene = MotionScene(rest=rest, ground=0.0)
+    h0 = float(rest[:, 2].mean())
+    lift = torch.tensor([0.0, -0.1, -0.2, -0.1, -0.15], dtype=torch.float64)  # down, up, down
+    x = torch.stack([rest + torch.tensor([0.0, 0.0, float(d)], dtype=torch.float64) for d in lift])
+    F = torch.eye(3, dtype=torch.float64).expand(5, rest.shape[0], 3, 3)
+    f = frame_features(x, F, torch.arange(5, dtype=torch.float64) * 0.1, scene)
+    r = f[:, IDX["rebound"]]
+    assert r[:3].abs().max() < 1e-9  # falling: nothing regained
+    assert float(r[3]) == pytest.approx(0.1 / 0.2, rel=1e-9)  # half the fall regained
+    assert float(r[4]) == pytest.approx(0.05 / 0.2, rel=1e-9)
+    assert h0 > 0.2
 
 
 def test_squash_reads_flattening_spread_strain_and_no_volume_change():
@@ -81,11 +101,12 @@ def test_squash_reads_flattening_spread_strain_and_no_volume_change():
     assert f[IDX["spread"]] == pytest.approx(-0.5 * math.log(s), abs=1e-9)
     assert f[IDX["volume"]] == pytest.approx(0.0, abs=1e-9)
     strain = float(torch.linalg.matrix_norm(S.T @ S - torch.eye(3, dtype=torch.float64)))
-    assert f[IDX["strain"]] == pytest.approx(strain, rel=1e-9)
+    assert math.exp(f[IDX["strain"]]) - LOG_FLOOR == pytest.approx(strain, rel=1e-6)
     L = float((rest.max(0).values - rest.min(0).values).max())
     ref = _kabsch_rms(rest.numpy(), x[0].numpy()) / L
     assert ref > 0.05
-    assert f[IDX["shape"]] == pytest.approx(ref, abs=2e-4)  # smoothed at 0 by 1e-4
+    shape = math.exp(f[IDX["shape"]]) - LOG_FLOOR
+    assert shape == pytest.approx(ref, abs=2e-4)  # smoothed at 0 by 1e-4
     assert f[IDX["drift"]] == pytest.approx(0.0, abs=1e-9)
     assert f[IDX["height"]] == pytest.approx((float(c0[2]) - 0.2) / float(c0[2]), rel=1e-9)
 
@@ -109,10 +130,10 @@ def test_spread_puddle_reads_spread_and_the_shape_change_of_a_tumbled_copy_is_ze
     assert f[0, IDX["vertical"]] == pytest.approx(-2 * math.log(k), abs=1e-9)
     L = float((rest.max(0).values - rest.min(0).values).max())
     assert f[0, IDX["drift"]] == pytest.approx(0.5 / L, abs=2e-4)  # smoothed at 0 by 1e-4
-    assert f[0, IDX["shape"]] > 0.1
+    assert math.exp(f[0, IDX["shape"]]) - LOG_FLOOR > 0.1
     # a rigid tumble (rotation about a horizontal axis) is not a shape change or strain
-    assert abs(float(f[1, IDX["shape"]])) < 1e-6
-    assert abs(float(f[1, IDX["strain"]])) < 1e-5  # smoothed at 0 by 1e-6
+    assert abs(math.exp(f[1, IDX["shape"]]) - LOG_FLOOR) < 1e-6
+    assert abs(math.exp(f[1, IDX["strain"]]) - LOG_FLOOR) < 1e-5  # smoothed at 0 by 1e-6
 
 
 def test_features_ignore_size_and_placement():

@@ -28,15 +28,21 @@ index  name             meaning
 5      spread           log(r_h / r_h0): the rms horizontal radius about the centroid
                         over its rest value (> 0: spread out)
 6      size             0.5 log(tr C / tr C0): overall extent (C: positional covariance)
-7      shape            rms distance of the particles from the best rigid motion of
-                        the rest state (Kabsch, via a polar decomposition), over L:
-                        rotation-invariant shape change
-8      strain           mean over particles of ||F^T F - I||_F (elastic strain)
+7      shape            log(0.003 + d / L), d the rms distance of the particles from
+                        the best rigid motion of the rest state (Kabsch, via a polar
+                        decomposition): rotation-invariant shape change, on a log scale
+                        so that the 1-5 % changes separating a rigid from a wobbly
+                        landing are as visible as a splash's 100 %
+8      strain           log(0.003 + e), e the mean over particles of ||F^T F - I||_F
+                        (elastic strain, log scale as ``shape``)
 9      volume           mean over particles of log det F (volume change)
 10     time             log(1 + t sqrt(g0 / L)): the frame's time in units of the
                         object's free-fall time scale (g0 = 9.8 m/s^2, so it is
                         defined with gravity off)
 11     gravity          |g| / g0 (constant over a clip)
+12     rebound          (h(c) - m) / max(h(c0) - m, 0.05 L), m the lowest centroid
+                        height so far: how far the centroid has risen again since its
+                        lowest point, over the fall before it (the captions' rebound)
 =====  ===============  =============================================================
 
 :func:`clip_features` turns the observed frames at arbitrary times (the supervised
@@ -79,11 +85,14 @@ FEATURE_NAMES = (
     "volume",
     "time",
     "gravity",
+    "rebound",
 )
 NUM_FEATURES = len(FEATURE_NAMES)
 G0 = 9.8
 """[m/s^2] The reference gravity of the time channel."""
 _LOW_SHARE = 0.1
+LOG_FLOOR = 0.003
+"""The floor of the log-scaled ``shape`` and ``strain`` channels."""
 """Share of the particles whose mean height is the underside (``bottom``)."""
 
 
@@ -171,6 +180,9 @@ def frame_features(x: Tensor, F: Tensor, times: Tensor, scene: MotionScene) -> T
     tt = torch.as_tensor(times, dtype=dt, device=x.device)
     time_ch = torch.log1p(tt * math.sqrt(G0 / L))
     grav = torch.full_like(tt, scene.g / G0)
+    lowest = torch.cummin(h_c, dim=0).values
+    h_rest = float(c0 @ up) - ground
+    rebound = (h_c - lowest) / torch.clamp(h_rest - lowest, min=0.05 * L)
     return torch.stack(
         [
             h_c / h_c0,
@@ -180,11 +192,12 @@ def frame_features(x: Tensor, F: Tensor, times: Tensor, scene: MotionScene) -> T
             torch.log(sig_up / sig_up0),
             torch.log(r_h / r_h0),
             0.5 * torch.log(tr / tr0.clamp_min(1e-12 * L**2)),
-            shape,
-            strain,
+            torch.log(LOG_FLOOR + shape),
+            torch.log(LOG_FLOOR + strain),
             volume,
             time_ch,
             grav,
+            rebound,
         ],
         dim=-1,
     )

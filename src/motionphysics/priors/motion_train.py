@@ -64,7 +64,7 @@ __all__ = [
 
 CAPTIONS_PER_CLIP = 6
 NUM_FRAMES = 16
-FEATURES_VERSION = "1"
+FEATURES_VERSION = "2"
 VIEWS: tuple[tuple[int, int], ...] = ((1, 1), (2, 1), (2, 2), (3, 1), (3, 3))
 """(stride, first frame) of the observed subsequences a clip is seen through: every
 frame; every second frame from frame 1 or 2; every third frame from frame 1 or 3."""
