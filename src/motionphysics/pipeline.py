@@ -194,9 +194,15 @@ def run_pipeline(
                 # (in the scene block: params.json has one key set for every command)
                 writer.state["scene"]["wall_hits"] = list(wall_hits)
                 first = wall_hits[0]
+                advice = (
+                    "sim.domain: give more room, or leave it null to fit the motion"
+                    if cfg.sim.domain is not None
+                    else "the fitted domain is too tight at this sim.grid: give sim.domain "
+                    "with more room, or a finer sim.grid"
+                )
                 warn(
-                    f"material reached the domain wall {first['wall']} at frame {first['frame']}"
-                    " (sim.domain: give more room, or leave it null to fit the motion)",
+                    f"material reached the domain wall {first['wall']} at frame "
+                    f"{first['frame']}; it stops there ({advice})",
                     writer.observer,
                 )
         # The automatic camera frames the whole trajectory, not only the first frame.

@@ -81,7 +81,13 @@ def done(tmp_path_factory):
 
 
 def _err_lines(capsys) -> list[str]:
-    return [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    # (the resume messages; the warnings about the physics of this tiny scene -- a 0.3 m
+    # ball on an 8-cell grid: hollow, touching the domain walls -- are not what is checked)
+    return [
+        ln
+        for ln in capsys.readouterr().err.splitlines()
+        if ln.strip() and not ln.startswith("warning:")
+    ]
 
 
 def test_resume_of_a_complete_run_rewrites_nothing(done, capsys):
