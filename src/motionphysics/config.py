@@ -216,7 +216,8 @@ class ClampGrid(_BCBase):
 
 
 class BoundingBox(_BCBase):
-    """Walls on the faces of the simulation domain."""
+    """Walls on the faces of the simulation domain, with friction or a thicker layer
+    (without one the faces are slip walls all the same)."""
 
     type: Literal["bounding_box"]
     friction: float = Field(0.0, ge=0)
