@@ -17,7 +17,10 @@ the optimised log10 E of each loss (the paper's Figure 3 claim: smaller with lmd
     python benchmarks/bench_prior_direction.py --iters 20 --seeds 3 --out /tmp/direction
     python benchmarks/bench_prior_direction.py --invariance --iters 20 --out /tmp/inv
 
-The scenes are not in the tiny prior's training data: the real capture in
+The starts are where the parameter changes what is seen at the scenes' 0.3 m size (E
+1e5 Pa: stiffer looks rigid; mu 1 Pa s: between a splash and an ooze); the tiny prior's
+figures in BENCHMARKS.md started from E 3e8 and mu 0.1. The scenes are not in the
+priors' training data: the real capture in
 ``../shared/data/real/donut.ply`` (when present) and a capsule mesh written here.
 ``--loss-options`` passes options to the loss (JSON), e.g.
 ``'{"form": "classifier_score", "guidance": 5}'``; ``--contrast`` sets each run's
@@ -45,14 +48,14 @@ REAL = ROOT.parent / "shared" / "data" / "real" / "donut.ply"
 PAIRS = {
     "elastic": {
         "param": "E",
-        "start": {"class": "elastic", "density": 1100, "E": 3.0e8, "nu": 0.3},
+        "start": {"class": "elastic", "density": 1100, "E": 1.0e5, "nu": 0.3},
         "up": "A stiff {obj} is dropped, stays rigid and bounces high off the ground",
         "down": "A soft, wobbly {obj} is dropped, squashes and wobbles like jelly",
         "bar": 3.0,
     },
     "newtonian": {
         "param": "mu",
-        "start": {"class": "newtonian", "density": 1000, "mu": 0.1, "kappa": 2.2e9},
+        "start": {"class": "newtonian", "density": 1000, "mu": 1.0, "kappa": 2.2e9},
         "up": "Thick honey shaped like a {obj} oozes slowly over the ground",
         "down": "Thin runny water shaped like a {obj} splashes and spreads thin",
         "bar": 10.0,

@@ -144,6 +144,11 @@ def _eval_motion(args) -> int:
     }
     if args.train_data:
         res["feature_classifier"] = feature_classifier(prepare(args.train_data), held)
+    if args.snapshot:
+        from motionphysics.priors.motion_train import read_snapshot, write_snapshot
+
+        snap = read_snapshot(write_snapshot(held, args.snapshot))
+        res["snapshot"] = {"path": args.snapshot, **discrimination(prior, snap)}
     print(json.dumps(res, indent=1))
     return 0
 
@@ -151,7 +156,12 @@ def _eval_motion(args) -> int:
 def _export(args) -> int:
     from motionphysics.priors.motion_train import export_weights
 
-    dst = export_weights(args.checkpoint, args.dst)
+    meta = None
+    if args.eval:
+        from pathlib import Path
+
+        meta = {"evaluation": json.loads(Path(args.eval).read_text())}
+    dst = export_weights(args.checkpoint, args.dst, meta)
     print(f"{dst}: {dst.stat().st_size / 1e6:.2f} MB")
     return 0
 
@@ -270,6 +280,11 @@ def register(subparsers) -> None:
         metavar="DIR",
         help="motion: training shards; adds a text-free classifier on the features",
     )
+    e.add_argument(
+        "--snapshot",
+        metavar="FILE",
+        help="motion: write 8 held-out clips per group (features) there and score them",
+    )
     e.set_defaults(func=_eval)
 
     x = sub.add_parser(
@@ -279,6 +294,7 @@ def register(subparsers) -> None:
     )
     x.add_argument("checkpoint", metavar="CKPT", help="training checkpoint (`prior train`)")
     x.add_argument("dst", metavar="DST", help="weights file to write")
+    x.add_argument("--eval", metavar="JSON", help="`prior eval` output to record in the meta")
     x.set_defaults(func=_export)
 
 

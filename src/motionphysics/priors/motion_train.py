@@ -556,3 +556,33 @@ def feature_classifier(
         "accuracy": float((pred == yte).float().mean()) if len(yte) else float("nan"),
         "confusion": conf.tolist(),
     }
+
+
+def write_snapshot(ds: dict[str, Any], path: str | Path, per_group: int = 8) -> Path:
+    """A small fixed sample of ``ds``'s clips (up to ``per_group`` of each motion group, in
+    data order; full view only) for a quick check of shipped weights: ``features``
+    [N, 1, T, C], ``groups``, ``shapes``."""
+    picked: dict[str, list[int]] = {}
+    for i, g in enumerate(ds["groups"]):
+        if g is not None and len(picked.setdefault(g, [])) < per_group:
+            picked[g].append(i)
+    idx = sorted(i for rows in picked.values() for i in rows)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path,
+        features=ds["features"][idx, :1].astype(np.float32),
+        groups=np.array([ds["groups"][i] for i in idx]),
+        shapes=np.array([ds["specs"][i]["shape"] for i in idx]),
+    )
+    return path
+
+
+def read_snapshot(path: str | Path) -> dict[str, Any]:
+    """What :func:`write_snapshot` wrote, in the layout :func:`discrimination` reads."""
+    with np.load(path) as z:
+        return {
+            "features": np.asarray(z["features"]),
+            "groups": [str(g) for g in z["groups"]],
+            "specs": [{"shape": str(s)} for s in z["shapes"]],
+        }
