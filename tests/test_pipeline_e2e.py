@@ -82,8 +82,13 @@ def test_params_json(run_dir):
     assert prov["backend"] == "kb" and prov["estimate"]["material"]["class"] == "elastic"
     assert prov["sources"] == {"density": "kb", "E": "kb", "nu": "config"}
     assert prov["overrides"] == {"nu": pytest.approx(0.4)}
-    # Issue 17: the only substitution is the sim map's compression of E, and it is said.
-    assert [(c["field"], c["kind"]) for c in prov["clamps"]] == [("E", "mapped to simulation")]
+    # Issue 23: a substitution is listed only where it can be seen; here E is simulated
+    # as asked or compressed where it cannot be seen, and then nothing is listed, and
+    # nothing is said on stderr (sim_context records it)
+    if p["sim"]["E"] < p["params"]["E"] and p["sim_context"]["visible_changes"]:
+        assert [(c["field"], c["kind"]) for c in prov["clamps"]] == [("E", "mapped to simulation")]
+    else:
+        assert prov["clamps"] == [] and p["sim_context"]["visible_changes"] == []
     assert p["history"] == [] and p["sim_context"]["substeps"] >= 1
     assert {"load scene", "estimate material", "simulate", "render"} <= set(p["timings"])
 

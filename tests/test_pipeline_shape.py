@@ -13,7 +13,8 @@ Measured (2026-11-22, grid 24, 600 particles): steel keeps every pair distance w
 height; the same steel mapped with the yield-strain rule (``yield_rule='strain'``:
 impact/yield 36 instead of 0.70) lands, dents (pair distances change by 5.7 %) and
 stays down; plasticine flattens into a 1 cm pancake (pair distances change by
-> 200 %); rubber rebounds to 0.42 of its drop height.
+> 200 %); rubber rebounds to 0.42 of its drop height (0.16 since issue 23: simulated at
+its kb stiffness instead of 116x softer).
 """
 
 from __future__ import annotations
@@ -121,6 +122,8 @@ def test_rubber_bounces_and_plasticine_does_not(runs):
     rubber = _rebound(x)
     clay = _rebound(runs["plasticine"][0])
     print(f"rebound rubber {rubber:.3f} plasticine {clay:.3f}")
-    # Measured 0.42 (rubber) and 0.04 (plasticine: the rod lands on its lowest particles).
-    assert rubber > 0.25
-    assert clay < 0.1
+    # Measured 0.16 (rubber, simulated at its kb stiffness E = 2e6 Pa since issue 23; the
+    # 0.42 measured before came from the map simulating it 116x softer; a flat landing
+    # also spends energy in bending) and 0.04 (plasticine: it lands and stays).
+    assert rubber > 0.1
+    assert clay < 0.07

@@ -110,9 +110,14 @@ def test_fit_command_writes_the_run_directory(reference_run, tmp_path, capsys):
     best = min(glob, key=lambda r: r["loss"] if r["loss"] is not None else float("inf"))
     assert grad[0]["params"]["E"] == pytest.approx(best["params"]["E"], rel=1e-5)
     assert params["fit"]["global"]["candidates"] == len(glob)
-    # the global stage lands within a grid spacing of the true 2e8 from 1e10 (the range
-    # 1e7..4e11 in 9 log steps: a factor 3.2; the refine round splits that)
-    assert 2e8 / 3.2 < grad[-1]["params"]["E"] < 2e8 * 3.2
+    # the global stage lands within a grid spacing of the truth from 1e10 (the elastic
+    # range in global_points log steps; the refine round splits that)
+    from motionphysics.materials.catalog import spec
+
+    ps = spec("elastic", "E")
+    step = (ps.high / ps.low) ** (1.0 / 9)
+    true_E = CASES["elastic"].true["E"]
+    assert true_E / step < grad[-1]["params"]["E"] < true_E * step
     with np.load(out / "trajectory.npz") as z, np.load(d / "ref" / "trajectory.npz") as ref:
         assert z["x"].shape == ref["x"].shape
     assert "fit:" in capsys.readouterr().out
@@ -209,7 +214,10 @@ def test_bad_references_are_refused_naming_both_sides(reference_run, tmp_path, c
         )
         err = capsys.readouterr().err
         assert rc == 2, name
-        assert len(err.strip().splitlines()) == 1, err
+        # one error line; the start (E = 1e10 at 16 substeps) may also carry the sim map's
+        # one-line warning of a visible change, said before the reference is checked
+        errors = [ln for ln in err.strip().splitlines() if not ln.startswith("warning:")]
+        assert len(errors) == 1, err
         import re
 
         assert re.search(pattern, err), (name, err)

@@ -24,8 +24,8 @@ the time-step budget allows it):
         ``substeps: auto``, the fixed count otherwise); ``E_vis``
         (:func:`visible_stiffness`) the stiffness above which every strain a viewer could
         see in this scene stays below ``visible_strain`` (0.5 % of the object's size);
-        ``knee = min(E_vis, cap / 1.25)``, ``top = min(cap, 4 knee)``,
-        ``hi_eff = max(class high, 16 top)``. So a stiffness that shows is simulated as
+        ``knee = min(E_vis, cap / 1.25)``, ``top = min(cap, 2 knee)``,
+        ``hi_eff = max(class high, 4 top)``. So a stiffness that shows is simulated as
         asked whenever the budget allows it, one that cannot be seen is compressed to
         just above ``E_vis`` (order kept: steel stays stiffer than rubber; cost that of
         ``E_vis``), and where the budget forces a visible change the plan says so in one
@@ -159,8 +159,8 @@ NU_KNEE = 0.45
 NU_SIM_MAX = 0.49
 """Simulation Poisson's ratio of a physical 0.5 (incompressible)."""
 NU_PHYS_MAX = 0.5
-ORDER_RATIO = 4.0
-"""Stiffness (and viscosity) that cannot be seen is compressed into ``[knee, 4 knee]``
+ORDER_RATIO = 2.0
+"""Stiffness (and viscosity) that cannot be seen is compressed into ``[knee, 2 knee]``
 above the visible threshold: the order of materials survives (steel stays stiffer than
 rubber), the cost stays that of the visible threshold."""
 BUDGET_RATIO = 1.25

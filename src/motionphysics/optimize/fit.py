@@ -164,6 +164,14 @@ def build_fit(
         raise UserInputError(
             f"{config_origin}: sim.frames must be >= 2 to fit (frame 0 is the initial state)"
         )
+    # A reference of the wrong length is refused before the assembly, so the user reads
+    # that one line and nothing the assembly would say about a run that cannot start.
+    t_ref = int(np.asarray(reference.data).shape[0]) if reference.data is not None else None
+    if t_ref is not None and t_ref != int(cfg.sim.frames):
+        raise UserInputError(
+            f"{reference.path}: reference has {t_ref} frames but {config_origin} sim.frames "
+            f"is {int(cfg.sim.frames)}"
+        )
     parts = assemble(
         cfg,
         device,
