@@ -241,3 +241,38 @@ def test_jelly_wobbles(tmp_path, capsys):
     after = h[int(np.argmin(h)) :]
     assert after.max() > h.min() + 0.15  # and comes back up: it wobbles
     assert math.isfinite(float(h[-1])) and h[-1] > 0.5
+
+
+def test_soft_rubber_squashes_more_than_stiff_rubber(tmp_path, capsys):
+    """The issue's pair: "soft squishy" rubber was foam at 30 kg/m^3 and squashed less
+    than "stiff" rubber. Now both are rubber, the soft one softer, and it gives more."""
+    runs = {}
+    for name, prompt in (
+        ("soft", "A soft squishy rubber ball squashes when it lands."),
+        ("stiff", "A stiff rubber ball bounces high."),
+    ):
+        data = {
+            "scene": {
+                "source": "builtin:sphere",
+                "scale": 0.2,
+                "translate": [0, 0, 0.4],
+                "max_particles": 800,
+            },
+            "prompt": prompt,
+            "sim": {"grid": 24, "frames": 16, "frame_dt": 0.02},
+            "camera": {"width": 32, "height": 32},
+        }
+        params, traj, _ = _simulate(tmp_path, name, data, capsys)
+        x = traj["x"]
+        h = x[:, :, 2].max(1) - x[:, :, 2].min(1)
+        runs[name] = (params, float((h / h[0]).min()), x[:, :, 2].mean(1))
+    (soft, squash_soft, z_soft), (stiff, squash_stiff, z_stiff) = runs["soft"], runs["stiff"]
+    assert soft["class"] == stiff["class"] == "elastic"
+    assert soft["density"] > 500  # rubber, not foam
+    assert soft["params"]["E"] < stiff["params"]["E"] / 3
+    assert soft["sim"]["E"] < stiff["sim"]["E"]
+    assert squash_soft < squash_stiff  # the soft ball gives more at impact
+    # both land and come back up
+    for z in (z_soft, z_stiff):
+        k = int(np.argmin(z))
+        assert 0 < k < len(z) - 1 and z[-1] > z[k] + 0.02
