@@ -276,3 +276,16 @@ def test_soft_rubber_squashes_more_than_stiff_rubber(tmp_path, capsys):
     for z in (z_soft, z_stiff):
         k = int(np.argmin(z))
         assert 0 < k < len(z) - 1 and z[-1] > z[k] + 0.02
+
+
+def test_foam_that_should_recover_slowly_is_told_it_cannot(capsys):
+    """The foam model has no viscoelastic memory: a prompt asking for a slow recovery is
+    told so on one line; one that does not ask is not."""
+    from motionphysics.materials.catalog import MODEL_LIMITS
+
+    assert main(["init", "A memory foam cushion is pressed and slowly recovers its shape."]) == 0
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "no viscoelastic memory" in ln]
+    assert len(lines) == 1 and MODEL_LIMITS["foam"] in lines[0]
+    assert main(["init", "A foam block is dropped on the floor."]) == 0
+    assert "viscoelastic" not in capsys.readouterr().err

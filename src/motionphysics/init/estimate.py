@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -24,6 +25,7 @@ from motionphysics.init.baselines import MedianKind, median_params
 from motionphysics.init.llm import LLMOptions, ask_material
 from motionphysics.materials.catalog import (
     MATERIALS,
+    MODEL_LIMITS,
     Clamp,
     MaterialParams,
     active_ranges,
@@ -31,6 +33,13 @@ from motionphysics.materials.catalog import (
     normalise_class,
     spec,
 )
+
+_SLOW_RECOVERY = re.compile(
+    r"\brecover|slowly\s+(returns?|regains?|springs?|comes?)|back\s+to\s+(its\s+)?"
+    r"(original\s+)?shape|regains?\s+(its\s+)?shape",
+    re.I,
+)
+"""Words asking for a slow viscoelastic recovery, which the foam model cannot do."""
 
 __all__ = [
     "BACKENDS",
@@ -263,6 +272,8 @@ def _from_kb(match, prompt: str, table: str) -> MaterialEstimate:
     # A prompt the kb cannot name a class for carries its error line instead of the
     # "not sure: closest ..." warnings of a guess nobody uses.
     warnings = [] if error else list(getattr(match, "warnings", []))
+    if not error and match.cls in MODEL_LIMITS and _SLOW_RECOVERY.search(prompt or ""):
+        warnings.append(f"kb: {match.cls}: {MODEL_LIMITS[match.cls]}")
     notes = []
     for c in clamped:
         if max(c.original, c.clamped) > 3.0 * min(c.original, c.clamped) > 0:

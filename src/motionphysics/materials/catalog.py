@@ -161,6 +161,19 @@ class MaterialClass:
         return MATERIAL_CLASSES.index(self.name)
 
 
+MODEL_LIMITS: dict[str, str] = {
+    "foam": (
+        "the foam model is elastic-viscoplastic (StVK-Hencky with a viscously regularised "
+        "von Mises return map): below its yield stress it springs back at once, above it "
+        "the crushed part stays crushed; it has no viscoelastic memory, so a foam that "
+        "'slowly recovers its shape' (memory foam) cannot be simulated as such: it either "
+        "bounces back or stays dented"
+    ),
+}
+"""What a class's constitutive model cannot do that words may ask of it (the kb warns
+when a prompt asks for it; README, "What is simulated")."""
+
+
 def _E(low, high, source):
     return ParamSpec("E", "Pa", low, high, "log", source, "Young's modulus")
 
