@@ -53,13 +53,13 @@ peers:
 # held-out clips, training, the held-out measures, the shippable weights. Resumable: rerun
 # after an interruption. PRIOR_DATA holds the clips and the training checkpoint.
 PRIOR_DATA ?= $(MOTIONPHYSICS_CACHE)/motion-prior
-PRIOR_CLIPS ?= 1500
-PRIOR_MIN ?= 20
+PRIOR_CLIPS ?= 1210
+PRIOR_MIN ?= 13
 prior: $(BIN)/motionphysics
 	$(BIN)/motionphysics prior data $(PRIOR_DATA)/train --clips $(PRIOR_CLIPS) --workers 2 --seed 0
 	$(BIN)/motionphysics prior data $(PRIOR_DATA)/held-out --clips 270 --workers 2 --seed 1 --held-out-shapes
 	$(BIN)/motionphysics prior train $(PRIOR_DATA)/train --out $(PRIOR_DATA)/motion_prior.pt \
-		--budget-min $(PRIOR_MIN) --threads 2 --resume
+		--budget-min $(PRIOR_MIN) --threads 1 --resume
 	$(BIN)/motionphysics prior eval $(PRIOR_DATA)/motion_prior.pt $(PRIOR_DATA)/held-out \
 		--train-data $(PRIOR_DATA)/train > $(PRIOR_DATA)/eval.json
 	$(BIN)/motionphysics prior export $(PRIOR_DATA)/motion_prior.pt src/motionphysics/priors/motion_prior.pt
