@@ -3,7 +3,7 @@
 :class:`MotionPrior` implements :class:`~motionphysics.priors.base.VideoPrior` for a
 network trained only on OUR simulator's clips (``motionphysics prior data`` /
 ``prior train``; weights shipped as ``motion_prior.pt`` beside this module, see
-``MODEL_CARD.md``). It observes the simulated states of the supervised frames, never
+``MODEL_CARD_motion.md``). It observes the simulated states of the supervised frames, never
 pixels (``observes = "states"``): appearance cannot enter, and the loop does not render
 for it. It knows our simulator, not real video.
 
