@@ -947,10 +947,11 @@ class BoundaryProgram:
                 continue
             s = op.scalars
             sticky = int(op.kind == "sticky")
+            friction = op.param.array if op.param is not None else self._zero_friction()
             _launch(
                 K._project_plane,
                 n,
-                [s["point"], s["normal"], sticky],
+                [s["point"], s["normal"], sticky, friction],
                 [state_out.x, state_out.v],
                 device=self.device,
             )

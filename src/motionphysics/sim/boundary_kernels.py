@@ -222,15 +222,19 @@ def _project_plane(
     point: wp.vec3,
     normal: wp.vec3,
     sticky: int,
+    friction: wp.array(dtype=float),
     x_src: wp.array(dtype=wp.vec3),
     v_src: wp.array(dtype=wp.vec3),
     x_dst: wp.array(dtype=wp.vec3),
     v_dst: wp.array(dtype=wp.vec3),
 ):
     # After G2P: a particle behind a collider plane (signed distance d < 0) is moved onto
-    # it (x - d n) and its inward normal velocity removed (sticky: all of it). The grid
-    # condition acts on nodes, so without this material settles ~half a cell into the
-    # plane. Piecewise linear: the adjoint is the projection's where it acts.
+    # it (x - d n) and its inward normal velocity removed (sticky: all of it), with
+    # Coulomb friction on the tangential velocity (the law the grid applies to the contact
+    # nodes; friction[0] = 0 for slip planes). The grid condition acts on nodes, so
+    # without this material settles ~half a cell into the plane; without the friction,
+    # material resting on the plane slid on a frictionless support (a cone of sand spread
+    # to an 8 degree heap). Piecewise smooth: the adjoint is the projection's where it acts.
     p = wp.tid()
     x = x_src[p]
     v = v_src[p]
@@ -242,7 +246,7 @@ def _project_plane(
         else:
             vn = wp.dot(v, normal)
             if vn < 0.0:
-                v = v - vn * normal
+                v = _coulomb(v - vn * normal, -vn, friction[0])
     x_dst[p] = x
     v_dst[p] = v
 
