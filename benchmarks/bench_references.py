@@ -18,24 +18,24 @@ Cases (``--cases``, default all):
              its height oscillation against the same block on a grid twice as fine
              (within 25 %), with the quarter-wave estimate of a block on a rigid base.
 ``heap``     a cone of sand (friction angle 36 deg, flanks 60 deg, 30 cm across) released
-             on a rough floor: the slope of the heap's flank against the friction angle
+             on the floor: the slope of the heap's flank against the friction angle
              (within 10 deg).
 ``cone50``   the same sand as a less steep cone (50 deg flanks): flank slope reported.
-``lube``     axisymmetric sand columns of aspect ratio a = h0/r0 (0.5, 1, 2) on a rough
-             floor: run-out (r_inf - r0)/r0 against Lube et al. (2004) (1.24 a for
-             a < 1.7, 1.6 a^(1/2) above; 25 %) and the final height h_inf/r0.
+``lube``     axisymmetric sand columns (r0 = 10 cm) of aspect ratio a = h0/r0 (0.5, 1, 2)
+             on the floor: run-out (r_inf - r0)/r0 against Lube et al. (2004) (1.24 a for
+             a < 1.7, 1.6 a^(1/2) above; the "ok" column asks 25 %, the tests a factor of
+             2) and the final height h_inf/r0 at the centre.
 ``dambreak`` a water column (width a, height 2a) against a wall collapses along a slip
              floor: surge front x/a against Martin & Moyce (1952) at T = t sqrt(2g/a) in
              [1, 3] (20 %).
 
     .venv/bin/python benchmarks/bench_references.py [--cases heap,lube] [--work DIR]
-        [--quick] [--proposed plane-friction] [--json out.json]
+        [--quick] [--reuse] [--floor-friction MU] [--lube-a 0.5,1,2] [--json out.json]
 
 ``--quick`` runs the small variants the default test suite runs (tests/sim/
-test_references.py). ``--proposed plane-friction`` measures a change proposed for
-``sim/boundary``: particles behind a collider plane are projected onto it with Coulomb
-friction (the grid's law) instead of frictionlessly; the runs then go through the same
-command line in a child process that applies that change first (nothing else differs).
+test_references.py). The sand cases run on the default ground (no ``boundary_conditions``:
+a frictional floor at z = 0, friction 0.3), as a user's config does; ``--floor-friction``
+gives them an explicit floor instead.
 """
 
 from __future__ import annotations
@@ -62,7 +62,6 @@ ROUGH = math.tan(math.radians(SAND_PHI))
 """A floor as rough as the sand (``--floor-friction 0.7265``; Lube et al. 2004 found the
 run-out the same on wood, baize, Plexiglas and sandpaper)."""
 CAMERA = {"width": 32, "height": 32}
-_PATCH_FLAG = "--_cli-with-plane-friction"
 
 
 # --------------------------------------------------------------------------- references
@@ -711,7 +710,7 @@ def _load(out: Path, err: str, wall: float) -> Run:
     return Run(out, params, traj, err, wall)
 
 
-def simulate(config: dict, out: Path, proposed: str | None = None, reuse: bool = False) -> Run:
+def simulate(config: dict, out: Path, reuse: bool = False) -> Run:
     """Write ``config`` next to ``out`` and run ``motionphysics simulate`` on it (``reuse``:
     measure a complete run already in ``out`` made from the same config instead)."""
     import yaml
@@ -722,11 +721,8 @@ def simulate(config: dict, out: Path, proposed: str | None = None, reuse: bool =
     if reuse and path.exists() and path.read_text() == text and (out / "params.json").exists():
         return _load(out, "", float("nan"))
     path.write_text(text)
-    if proposed == "plane-friction":
-        cmd = [sys.executable, str(Path(__file__).resolve()), _PATCH_FLAG]
-    else:
-        cmd = [sys.executable, "-m", "motionphysics"]
-    cmd += ["simulate", str(path), "--out", str(out), "--force", "--quiet"]
+    cmd = [sys.executable, "-m", "motionphysics", "simulate", str(path), "--out", str(out)]
+    cmd += ["--force", "--quiet"]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=os.environ.copy())
     wall = time.perf_counter() - t0
@@ -735,15 +731,13 @@ def simulate(config: dict, out: Path, proposed: str | None = None, reuse: bool =
     return _load(out, proc.stderr, wall)
 
 
-def run_case(
-    case: Case, work: Path, quick: bool = False, proposed: str | None = None, reuse: bool = False
-) -> dict:
+def run_case(case: Case, work: Path, quick: bool = False, reuse: bool = False) -> dict:
     """Simulate every config of ``case`` and measure; returns the measure's dict plus
     grid, substeps and wall-time columns."""
     d = work / case.name
     d.mkdir(parents=True, exist_ok=True)
     configs = case.configs(d, quick)
-    runs = {name: simulate(cfg, d / name, proposed, reuse) for name, cfg in configs.items()}
+    runs = {name: simulate(cfg, d / name, reuse) for name, cfg in configs.items()}
     res = case.measure(runs, quick)
     main = runs[next(iter(runs))]
     res.update(
@@ -777,87 +771,14 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-# --------------------------------------------------------------------------- proposed change
-
-
-def apply_plane_friction() -> None:
-    """The proposed ``sim/boundary`` change, applied in this process: particles behind a
-    frictional collider plane are projected onto it with Coulomb friction on their
-    tangential velocity (``_coulomb(v_t, |v_n|, friction)``, the law the grid applies to
-    the contact nodes) instead of keeping it. Slip planes keep it (friction 0), sticky
-    planes stop the particle as before."""
-    from motionphysics.runtime import init_warp
-    from motionphysics.sim import boundary as B
-    from motionphysics.sim import boundary_kernels as K
-
-    wp = init_warp()
-
-    @wp.kernel
-    def _project_plane_friction(
-        point: wp.vec3,
-        normal: wp.vec3,
-        sticky: int,
-        friction: wp.array(dtype=float),
-        x_src: wp.array(dtype=wp.vec3),
-        v_src: wp.array(dtype=wp.vec3),
-        x_dst: wp.array(dtype=wp.vec3),
-        v_dst: wp.array(dtype=wp.vec3),
-    ):
-        p = wp.tid()
-        x = x_src[p]
-        v = v_src[p]
-        d = wp.dot(x - point, normal)
-        if d < 0.0:
-            x = x - d * normal
-            if sticky != 0:
-                v = wp.vec3(0.0, 0.0, 0.0)
-            else:
-                vn = wp.dot(v, normal)
-                if vn < 0.0:
-                    v = K._coulomb(v - vn * normal, -vn, friction[0])
-        x_dst[p] = x
-        v_dst[p] = v
-
-    original = B.BoundaryProgram.apply_post_g2p
-
-    def apply_post_g2p(self, model, state_in, state_out, t, substep, dt):
-        ops = self._plane_ops
-        self._plane_ops = []
-        try:
-            original(self, model, state_in, state_out, t, substep, dt)
-        finally:
-            self._plane_ops = ops
-        for op in ops:
-            if not op.window.active(t, substep, dt):
-                continue
-            s = op.scalars
-            friction = op.param.array if op.param is not None else self._zero_friction()
-            B._launch(
-                _project_plane_friction,
-                self.particle_count,
-                [s["point"], s["normal"], int(op.kind == "sticky"), friction],
-                [state_out.x, state_out.v],
-                device=self.device,
-            )
-
-    B.BoundaryProgram.apply_post_g2p = apply_post_g2p
-
-
 # --------------------------------------------------------------------------- main
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] == _PATCH_FLAG:
-        apply_plane_friction()
-        from motionphysics.cli import main as cli_main
-
-        return cli_main(argv[1:])
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--work", default=None, help="keep the runs here (default: a temp dir)")
     ap.add_argument("--quick", action="store_true", help="the small variants the tests run")
-    ap.add_argument("--proposed", choices=["plane-friction"], default=None)
     ap.add_argument("--reuse", action="store_true", help="measure complete runs left in --work")
     ap.add_argument(
         "--floor-friction",
@@ -888,7 +809,7 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     try:
         for name in names:
-            res = run_case(CASES[name], work, a.quick, a.proposed, a.reuse)
+            res = run_case(CASES[name], work, a.quick, a.reuse)
             results.append(res)
             print(
                 f"{name}: {res['measured']} | {res['reference']} | ok={res['ok']}", file=sys.stderr

@@ -112,14 +112,6 @@ def test_jelly_cube_wobbles_at_its_converged_frequency(tmp_path):
 # ---- granular --------------------------------------------------------------------------
 
 
-PLANE_FRICTION = pytest.mark.xfail(
-    strict=True,
-    reason="needs friction in the collider plane's particle projection (sim/boundary, "
-    "proposed: benchmarks/bench_references.py apply_plane_friction): without it sand lying "
-    "on the floor slides on a frictionless support and a cone spreads to 8 deg",
-)
-
-
 def _check_heap(res: dict) -> None:
     v = res["values"]
     assert v["v_end"] < 0.1, res  # at rest
@@ -127,14 +119,12 @@ def _check_heap(res: dict) -> None:
     assert abs(v["slope"] - _bench().SAND_PHI) <= 10.0, res
 
 
-@PLANE_FRICTION
 def test_sand_heap_slope_is_its_friction_angle(tmp_path):
     # the cone (60 deg flanks) released on the default ground, grid 32
     _check_heap(_run("heap", tmp_path, quick=True))
 
 
 @pytest.mark.slow
-@PLANE_FRICTION
 def test_sand_heap_table_resolution(tmp_path):
     _check_heap(_run("heap", tmp_path, quick=False))
 
@@ -144,18 +134,18 @@ def _check_lube(res: dict) -> None:
         # Measured with this solver (Drucker-Prager, phi = 36 deg): 0.55-0.65 of Lube's
         # fit at every a (BENCHMARKS.md); the law's own materials scatter by about 15 %.
         # Bound: within a factor of 2 of the law, and the deposit keeps a heap at its
-        # centre (on a frictionless support the column spread into a sheet 0.27 r0 high)
+        # centre: Lube et al. found the top undisturbed below a = 0.74 and h_inf about r0
+        # above; on a frictionless support the a = 1 column spread into a sheet 0.27 r0
+        # (grid 32) to 0.49 r0 (grid 48) high
         assert 0.5 < v["runout"] / v["lube"] < 2.0, res
-        assert v["h_inf_r0"] > 0.5 * min(v["h0_r0"], 1.0), res
+        assert v["h_inf_r0"] > 0.6 * min(v["h0_r0"], 1.0), res
 
 
-@PLANE_FRICTION
 def test_sand_column_runout_against_lube(tmp_path):
     _check_lube(_run("lube", tmp_path, quick=True))
 
 
 @pytest.mark.slow
-@PLANE_FRICTION
 def test_sand_columns_runout_against_lube_table_resolution(tmp_path):
     _check_lube(_run("lube", tmp_path, quick=False))
 
