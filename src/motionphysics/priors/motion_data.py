@@ -504,7 +504,6 @@ def generate(
 
     ``on_shard(done_shards, total_shards, clips_in_shard)`` is called as shards finish.
     Writes ``out/dataset.json``. Returns it."""
-    from motionphysics.errors import UserInputError
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -518,34 +517,19 @@ def generate(
         "shard_size": SHARD_SIZE,
         "max_attempts": MAX_ATTEMPTS,
     }
-    mfile = out / "dataset.json"
-    if mfile.exists():
-        old = json.loads(mfile.read_text())
-        for key in ("schema", "seed", "shapes", "frames", "particles", "shard_size"):
-            if old.get(key) != meta[key]:
-                raise UserInputError(
-                    f"{mfile}: {key} is {old.get(key)!r} there but {meta[key]!r} was asked; "
-                    "use another OUT directory"
-                )
-    mfile.write_text(json.dumps(meta, indent=1))
-    n_shards = (clips + SHARD_SIZE - 1) // SHARD_SIZE
-    jobs = [(str(out), seed, k, clips, tuple(shapes)) for k in range(n_shards)]
-    done = 0
-    if workers <= 1:
-        for job in jobs:
-            _, n, _ = _make_shard(job)
-            done += 1
-            if on_shard:
-                on_shard(done, n_shards, n)
-    else:
-        import multiprocessing as mp
+    from motionphysics.priors.tiny_data import run_shards
 
-        with mp.get_context("spawn").Pool(workers) as pool:
-            for _, n, _ in pool.imap_unordered(_make_shard, jobs):
-                done += 1
-                if on_shard:
-                    on_shard(done, n_shards, n)
-    return meta
+    return run_shards(
+        out,
+        meta,
+        ("schema", "seed", "shapes", "frames", "particles", "shard_size"),
+        _make_shard,
+        seed,
+        clips,
+        shapes,
+        workers,
+        on_shard,
+    )
 
 
 def load_clips(root: str | Path, *, max_shards: int | None = None) -> dict[str, Any]:

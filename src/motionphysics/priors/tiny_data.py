@@ -505,7 +505,6 @@ def generate(
     ``on_shard(done_shards, total_shards, clips_in_shard)`` is called as shards finish.
     Writes ``out/dataset.json`` (seed, clips, shapes, frame layout). Returns it.
     """
-    from motionphysics.errors import UserInputError
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -519,10 +518,41 @@ def generate(
         "frame_dt": FRAME_DT,
         "shard_size": SHARD_SIZE,
     }
+    return run_shards(
+        out,
+        meta,
+        ("seed", "shapes", "frames", "size", "shard_size"),
+        _make_shard,
+        seed,
+        clips,
+        shapes,
+        workers,
+        on_shard,
+    )
+
+
+def run_shards(
+    out: Path,
+    meta: dict,
+    keys: tuple[str, ...],
+    make_shard,
+    seed: int,
+    clips: int,
+    shapes,
+    workers: int,
+    on_shard=None,
+) -> dict:
+    """Write ``out/dataset.json`` (refusing an OUT made with other ``keys`` values) and make
+    every shard of ``SHARD_SIZE`` clips with ``make_shard((out, seed, k, clips, shapes))``
+    (a module-level function: ``spawn`` workers pickle it), in this process or a pool of
+    ``workers``; ``on_shard(done, total, clips_in_shard)`` after each. Returns ``meta``.
+    Shared by the tiny and the motion prior's ``prior data``."""
+    from motionphysics.errors import UserInputError
+
     mfile = out / "dataset.json"
     if mfile.exists():
         old = json.loads(mfile.read_text())
-        for key in ("seed", "shapes", "frames", "size", "shard_size"):
+        for key in keys:
             if old.get(key) != meta[key]:
                 raise UserInputError(
                     f"{mfile}: {key} is {old.get(key)!r} there but {meta[key]!r} was asked; "
@@ -534,7 +564,7 @@ def generate(
     done = 0
     if workers <= 1:
         for job in jobs:
-            _, n, _ = _make_shard(job)
+            _, n, _ = make_shard(job)
             done += 1
             if on_shard:
                 on_shard(done, n_shards, n)
@@ -542,7 +572,7 @@ def generate(
         import multiprocessing as mp
 
         with mp.get_context("spawn").Pool(workers) as pool:
-            for _, n, _ in pool.imap_unordered(_make_shard, jobs):
+            for _, n, _ in pool.imap_unordered(make_shard, jobs):
                 done += 1
                 if on_shard:
                     on_shard(done, n_shards, n)
