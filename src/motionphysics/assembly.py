@@ -328,9 +328,7 @@ def map_context(
 
 def _budget(cfg: RunConfig) -> int:
     """Substeps per frame ``substeps: auto`` may spend (``sim.max_substeps``)."""
-    from motionphysics.materials.simmap import MAX_AUTO_SUBSTEPS
-
-    return int(getattr(cfg.sim, "max_substeps", None) or MAX_AUTO_SUBSTEPS)
+    return int(cfg.sim.max_substeps)
 
 
 def sim_values(physical: Mapping[str, Any], cls: str, ctx) -> dict[str, Any]:

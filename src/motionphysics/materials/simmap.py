@@ -279,10 +279,6 @@ class SimContext:
         return self.thickness if self.thickness else self.length
 
     @property
-    def frame_dt_or_default(self) -> float:
-        return self.frame_dt
-
-    @property
     def run_time(self) -> float:
         """Simulated time [s] (``duration``, or 2 s when unknown)."""
         return self.duration if self.duration else 2.0
@@ -989,10 +985,12 @@ def plan_substeps(
     ctx, sim = mapped(n)
     bad = class_violations(params, sim, ctx)
     if not bad:
+        changes = visible_changes(params, sim, ctx)
+        auto_n = auto_plan().substeps if changes else 0  # (one auto plan, only when said)
         notes = [
             f"warning: {where}: with substeps {n} the {c.text.replace(_REMEDY, '')}"
-            f"`substeps: auto` ({auto_plan().substeps}) simulates it as asked"
-            for c in visible_changes(params, sim, ctx)
+            f"`substeps: auto` ({auto_n}) simulates it as asked"
+            for c in changes
         ]
         return SubstepPlan(n, ctx, sim, notes, [])
     least = substeps_keeping_class(params, start=n, cap=cap, **kw)
