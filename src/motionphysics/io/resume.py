@@ -10,7 +10,8 @@ say from where the run continues.
 - a complete run of the same config: ``complete``; the caller writes nothing;
 - an interrupted, killed or failed run of the same config: ``continue``, with one line
   saying which stage it stopped in and where it goes on (the optimisation from its
-  checkpoint; any other stage cannot continue mid-way and is restarted).
+  checkpoint; ``fit``'s global search from its first candidate; any other stage
+  cannot continue mid-way and is restarted).
 
 "The same config": every value the request sets equals the recorded one; a value the
 request leaves open (``null``: the material when it is estimated, an auto-framed
@@ -50,6 +51,9 @@ _BEFORE_OPTIMISE = {
     "resolve material",
 }
 """Stages a run passes before the optimisation (redone from the config on resume)."""
+GLOBAL_STAGE = "global search"
+"""``fit``'s forward-only stage before the gradient stage: it keeps no checkpoint (its
+candidates are cheap rollouts), so a resume redoes it from its first candidate."""
 
 Action = Literal["new", "complete", "continue", "restart"]
 
@@ -273,6 +277,11 @@ def plan_resume(
     of = f" of {total}" if total is not None else ""
     if stage in _BEFORE_OPTIMISE:
         tail = f"'{stage}' cannot continue mid-way: restarting it and the stages after it"
+    elif stage == GLOBAL_STAGE:
+        tail = (
+            f"'{stage}' keeps no checkpoint: restarting the global search from its first "
+            f"candidate, then the gradient stage from iteration 0{of}"
+        )
     elif stage == OPTIMISE_STAGE:
         # stop_reason is set by the last checkpoint of a finished optimisation
         # ('iterations', 'converged' or 'nan'), None while it runs

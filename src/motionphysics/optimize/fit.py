@@ -8,8 +8,8 @@ or .npz with ``frames`` [T,H,W,3] and optionally ``mask`` [T,H,W]), fitted with
 simulate`` writes), fitted with ``trajectory_match``.
 
 What is optimised: theta of the *physical* parameters (``optimize.params``, default
-all of the class's, density excluded), mapped through the catalogue's
-``Parameterisation`` (bounded by the handbook ranges) and then through the assembly's
+all of the class's but Poisson's ratio, :data:`FIT_DEFAULT_FIXED`, and density),
+mapped through the catalogue's ``Parameterisation`` (bounded by the handbook ranges) and then through the assembly's
 sim map (:func:`motionphysics.assembly.sim_values`, differentiable) into simulation
 values. The simulation is the assembly's: the same config and parameters give the
 trajectory ``simulate`` gives, bit for bit; under ``substeps: auto`` the substep count
@@ -60,6 +60,8 @@ class FitSetup:
     problem: Any
     """The :class:`~motionphysics.optimize.Problem`."""
     reference: Reference
+    kept: str | None = None
+    """The one line saying which parameters the default left at the config's value."""
 
     @property
     def cfg(self):
@@ -82,12 +84,22 @@ class FitSetup:
         return self.parts.resolution.context
 
 
-def optimised_names(cfg, cls: str) -> list[str]:
-    """``optimize.params`` checked against the class (default: all of its parameters)."""
+FIT_DEFAULT_FIXED = ("nu",)
+"""Parameters ``fit`` leaves at the config's value unless ``optimize.params`` names them:
+Poisson's ratio barely changes a drop's motion, so fitted with E it drifts (0.4 -> 0.155
+on a reference made with 0.4) while E compensates."""
+
+
+def optimised_names(cfg, cls: str, fixed: tuple[str, ...] = ()) -> list[str]:
+    """``optimize.params`` checked against the class (default: all of its parameters
+    except ``fixed``)."""
     from motionphysics.materials.catalog import MATERIALS
 
     allowed = MATERIALS[cls].names
-    names = list(cfg.optimize.params) if cfg.optimize.params is not None else list(allowed)
+    if cfg.optimize.params is not None:
+        names = list(cfg.optimize.params)
+    else:
+        names = [n for n in allowed if n not in fixed] or list(allowed)
     bad = [n for n in names if n not in (*allowed, "density")]
     if bad or not names:
         raise UserInputError(
@@ -192,7 +204,15 @@ def build_fit(
             f"{config_origin}: objects: fitting the materials of several objects is not "
             "available yet; fit one object at a time"
         )
-    names = optimised_names(cfg, parts.material.cls)
+    names = optimised_names(cfg, parts.material.cls, FIT_DEFAULT_FIXED)
+    kept = [n for n in FIT_DEFAULT_FIXED if n in parts.material.values and n not in names]
+    note = None
+    if kept:
+        vals = ", ".join(f"{n} {float(parts.material.values[n]):g}" for n in kept)
+        note = (
+            f"fit optimises {', '.join(names)}; {vals} stays at the config's value by default "
+            "(add it to optimize.params to fit it)"
+        )
     num_frames = int(cfg.sim.frames)
     if reference.kind == "video":
         loss = get_loss("video_match")(
@@ -207,7 +227,7 @@ def build_fit(
             reference.data, metric=cfg.optimize.trajectory_metric, source=reference.path
         )
         loss.check(num_frames, parts.num_particles, config_origin)
-    return FitSetup(parts, names, build_problem(parts, loss, names), reference)
+    return FitSetup(parts, names, build_problem(parts, loss, names), reference, note)
 
 
 @dataclass
@@ -589,7 +609,7 @@ def run_fit(
         fit.update(
             {
                 "stop_reason": result.stop_reason,
-                "message": result.message,
+                "message": f"{result.message} {setup.kept}" if setup.kept else result.message,
                 "iterations_run": result.iterations,
                 "substeps_changes": [list(c) for c in getattr(problem.simulator, "changes", [])],
             }
