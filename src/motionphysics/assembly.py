@@ -732,8 +732,15 @@ def default_ground(cfg: RunConfig, lowest_z: float, size: float) -> tuple[RunCon
     stands on a floor there instead of starting inside one); ``size`` [m] (the scene's
     extent) sets the round-off tolerance. ``boundary_conditions: []`` is free space: no
     ground. Returns the config with the collider written in (``run.yaml`` records it)
-    and the summary's ``ground:`` line (None when the config gave its own list).
+    and the summary's ``ground:`` line (None when the config gave its own list). With a
+    ``region`` of a capture the static scene is the support and no floor is added
+    (:func:`motionphysics.assembly_scene.region_ground`).
     """
+    from motionphysics.assembly_scene import region_ground
+
+    by_region = region_ground(cfg)
+    if by_region is not None:
+        return by_region
     if cfg.boundary_conditions is not None:
         return cfg, None
     z = 0.0 if lowest_z >= -1e-4 * max(size, 1e-6) else float(lowest_z)
@@ -840,7 +847,7 @@ def resolve_camera(cfg: RunConfig, sim_scene, xs=None) -> tuple[RunConfig, dict[
     """
     cam = cfg.camera
     explicit = cam.model_fields_set
-    if cam.cameras_json or {"radius", "look_at"} & explicit:
+    if cam.camera_file or {"radius", "look_at"} & explicit:
         return cfg, {"framing": "config"}
     lo, hi = _object_box(sim_scene)
     if xs is not None:
@@ -929,7 +936,8 @@ def ground_splats(cfg: RunConfig, sim_scene) -> dict[str, Any] | None:
 
 
 def render_view(sim_scene, x, F, camera, background, ground: dict[str, Any] | None = None):
-    """One frame: object splats following particles ``x`` [P,3] m, ``F`` [P,3,3] (+ ground).
+    """One frame: object splats following particles ``x`` [P,3] m, ``F`` [P,3,3] (+ ground,
+    + the static splats of a ``scene.region`` run, unchanged).
 
     Returns rgb [H, W, 3] float32 in [0, 1] (torch, no autograd needed by callers here).
     """
@@ -950,6 +958,14 @@ def render_view(sim_scene, x, F, camera, background, ground: dict[str, Any] | No
         covs = torch.cat([covs, ground["covs"]])
         colors = torch.cat([colors.clamp(0, 1), ground["colors"]])
         opac = torch.cat([opac, ground["opacities"]])
+    from motionphysics.assembly_scene import static_splats_view
+
+    static = static_splats_view(sim_scene, camera, means)
+    if static is not None:
+        means = torch.cat([means, static["means"]])
+        covs = torch.cat([covs, static["covs"]])
+        colors = torch.cat([colors, static["colors"]])
+        opac = torch.cat([opac, static["opacities"]])
     return rasterize(means, covs, colors, opac, camera, background).rgb
 
 
@@ -1140,7 +1156,8 @@ class Assembly:
         if note.get("framing") == "config":
             return self
         cfg = self.cfg.model_copy(update={"camera": cfg_cam.camera})
-        return replace(self, cfg=cfg, camera=camera_from_config(cfg.camera), camera_note=note)
+        camera = camera_from_config(cfg.camera, self.sim_scene.source_to_world)
+        return replace(self, cfg=cfg, camera=camera, camera_note=note)
 
     def with_materials(self, materials) -> Assembly:
         """Several objects: new MaterialParams per object (a list or a SceneMaterial)."""
@@ -1327,7 +1344,7 @@ def assemble(
         from motionphysics.render.camera import camera_from_config
 
         cfg, cam_note = resolve_camera(cfg, sim_scene)
-        camera = camera_from_config(cfg.camera)
+        camera = camera_from_config(cfg.camera, sim_scene.source_to_world)
         background = tuple(float(v) for v in cfg.camera.background)
         ground = ground_splats(cfg, sim_scene)
         if reference_image or need_estimate:
@@ -1391,6 +1408,15 @@ def _scene_notes(ground_note: str | None, sim_scene, observer) -> dict[str, str]
     if ground_note:
         notes["ground"] = ground_note
         observer.message("info", ground_note)
+    from motionphysics.assembly_scene import static_lines
+
+    static, sparse = static_lines(sim_scene)
+    if static:
+        notes["static"] = static
+        observer.message("info", static)
+    if sparse:
+        notes["static_support"] = sparse
+        warn(sparse, observer)
     fill = getattr(sim_scene, "fill_note", None)
     if fill:
         notes["fill"] = fill
@@ -1519,7 +1545,7 @@ def _assemble_objects(
     ref_np = None
     with stage("reference render"):
         cfg, cam_note = resolve_camera(cfg, sim_scene)
-        camera = camera_from_config(cfg.camera)
+        camera = camera_from_config(cfg.camera, sim_scene.source_to_world)
         background = tuple(float(v) for v in cfg.camera.background)
         ground = ground_splats(cfg, sim_scene)
         if reference_image or any(need):

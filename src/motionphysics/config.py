@@ -34,6 +34,29 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
+class Region(_Strict):
+    """A part of space in the world frame (after the scene transform): the selectors
+    forces use, ``{box: [[x0, y0, z0], [x1, y1, z1]]}`` or ``{sphere: [[x, y, z], r]}``."""
+
+    box: Box | None = None
+    """Axis-aligned box [m], low corner then high corner."""
+    sphere: tuple[Vec3, float] | None = None
+    """``[[cx, cy, cz], radius]`` [m]."""
+
+    @model_validator(mode="after")
+    def _one_shape(self):
+        if (self.box is None) == (self.sphere is None):
+            raise ValueError("a region needs exactly one of 'box' or 'sphere'")
+        if self.box is not None and not all(a < b for a, b in zip(*self.box, strict=True)):
+            raise ValueError("box: [[xmin, ymin, zmin], [xmax, ymax, zmax]] with min < max")
+        if self.sphere is not None and not self.sphere[1] > 0:
+            raise ValueError("sphere: [[x, y, z], r] with a radius r > 0")
+        return self
+
+
+UpAxis = Literal["z", "y", "x", "-z", "-y", "-x"]
+
+
 class SceneConfig(_Strict):
     source: str = "builtin:sphere"
     """``builtin:NAME``, an INRIA 3DGS ``.ply``, or a mesh (.obj .stl .off .glb, mesh .ply)."""
@@ -46,7 +69,25 @@ class SceneConfig(_Strict):
     opacity_threshold: float = Field(0.02, ge=0, lt=1)
     """Splats with opacity below this are dropped before simulation."""
     crop: tuple[float, float, float, float, float, float] | None = None
-    """World-frame box ``[xmin, xmax, ymin, ymax, zmin, zmax]`` [m] kept for simulation."""
+    """World-frame box ``[xmin, xmax, ymin, ymax, zmin, zmax]`` [m]: the splats outside it
+    are discarded (neither simulated nor drawn; see ``region`` to keep them)."""
+    up: UpAxis | Vec3 = "z"
+    """The capture's vertical axis in its own coordinates: ``z`` (the world's), ``y``
+    (Brush and many nerfstudio exports), ``x``, a negated axis (``-y``: COLMAP's y points
+    down), or a vector ``[ux, uy, uz]`` (a capture whose floor is tilted). Applied first,
+    as the shortest rotation taking it to +z; then ``scale``, ``rotate``, ``translate``."""
+    region: Region | None = None
+    """Simulate only the splats inside this region (world frame, after the transform):
+    ``{box: [[x0, y0, z0], [x1, y1, z1]]}`` or ``{sphere: [[x, y, z], r]}``. The other
+    splats (above ``opacity_threshold`` or not) stay where they are, are drawn in every
+    frame and exported, and hold the simulated ones up (``static_collider``). Unlike
+    ``crop``, which discards the splats outside it."""
+    static_collider: Literal["frictional", "sticky", "slip", "off"] = "frictional"
+    """With ``region``: how the static splats near the simulated region act on it: a
+    fixed collider (a level set of the cells they occupy at half the grid spacing) with
+    Coulomb friction ``static_friction``, sticky (v = 0), slip, or ``off`` (drawn only)."""
+    static_friction: float = Field(0.3, ge=0)
+    """Coulomb coefficient of the ``frictional`` static collider."""
     fill: bool = True
     """Fill the interior of closed objects with invisible particles (PhysGaussian)."""
     max_particles: int = Field(20000, gt=0)
@@ -75,6 +116,28 @@ class SceneConfig(_Strict):
         if c is not None and not (c[0] < c[1] and c[2] < c[3] and c[4] < c[5]):
             raise ValueError("[xmin, xmax, ymin, ymax, zmin, zmax] with min < max")
         return c
+
+    @field_validator("up")
+    @classmethod
+    def _up_nonzero(cls, u):
+        if not isinstance(u, str) and not sum(a * a for a in u) > 0:
+            raise ValueError("a non-zero vector [ux, uy, uz], or one of z, y, x, -z, -y, -x")
+        return u
+
+    @model_validator(mode="after")
+    def _static_keys_need_region(self):
+        # (run.yaml writes every key: only values other than the defaults need a region)
+        given = [
+            k
+            for k in ("static_collider", "static_friction")
+            if getattr(self, k) != type(self).model_fields[k].default
+        ]
+        if given and self.region is None:
+            raise ValueError(
+                f"{sorted(given)[0]}: only with scene.region (the splats outside it are "
+                "the static scene)"
+            )
+        return self
 
 
 class MaterialConfig(_Strict):
@@ -253,19 +316,6 @@ BoundaryCondition = Annotated[
 ]
 
 
-class Region(_Strict):
-    box: Box | None = None
-    """Axis-aligned box [m]."""
-    sphere: tuple[Vec3, float] | None = None
-    """``[[cx, cy, cz], radius]`` [m]."""
-
-    @model_validator(mode="after")
-    def _one_shape(self):
-        if (self.box is None) == (self.sphere is None):
-            raise ValueError("a region needs exactly one of 'box' or 'sphere'")
-        return self
-
-
 class _ForceBase(TimeWindow):
     box: Box | None = None
     """Particles selected by an axis-aligned box [m] (or give ``sphere``; neither: all)."""
@@ -346,6 +396,10 @@ Force = Annotated[
 
 
 class CameraConfig(_Strict):
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True
+    )
+
     azimuth: float = 30.0
     """Azimuth [degrees], counter-clockwise from +x about the up axis."""
     elevation: float = 20.0
@@ -365,9 +419,26 @@ class CameraConfig(_Strict):
     background: Vec3 = (1.0, 1.0, 1.0)
     """RGB in [0, 1]."""
     cameras_json: str | None = None
-    """Optional INRIA cameras.json; with it, ``camera_index`` picks the view."""
-    camera_index: int = 0
-    """Which camera of ``cameras_json`` is used."""
+    """Optional INRIA cameras.json; with it, ``camera_index`` picks the view (the older
+    spelling of ``from``; give one of them)."""
+    from_: str | None = Field(None, alias="from")
+    """A capture's cameras: an INRIA ``cameras.json`` or a nerfstudio ``transforms.json``
+    (told apart by their content); ``camera_index`` picks the view. The cameras are in
+    the capture's frame and follow the scene transform (``up``, ``scale``, ``rotate``,
+    ``translate``) into the world; the image is resized to ``width`` x ``height``."""
+    camera_index: int = Field(0, ge=0)
+    """Which camera of ``from`` / ``cameras_json`` is used."""
+    @model_validator(mode="after")
+    def _one_camera_file(self):
+        if self.from_ is not None and self.cameras_json is not None:
+            raise ValueError("from: give from or cameras_json, not both")
+        return self
+
+    @property
+    def camera_file(self) -> str | None:
+        """``from`` or ``cameras_json`` (the capture's camera file), or None."""
+        return self.from_ or self.cameras_json
+
     show_ground: bool = True
     """Draw the ground (the highest upward-facing surface collider) as a grey checker floor
     in the video and the reference image; render only, never simulated."""

@@ -17,7 +17,19 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["deformed_splats", "export_splats", "frame_file_name"]
+__all__ = ["deformed_splats", "export_splats", "frame_file_name", "with_static"]
+
+
+def with_static(splats, sim_scene):
+    """``(splats + the static splats of a region run, {"simulated": [N + S] uint8})``, or
+    ``(splats, None)`` when the scene has no static splats."""
+    static = getattr(sim_scene, "static_splats", None)
+    if static is None:
+        return splats, None
+    from motionphysics.scene.gaussians import GaussianScene
+
+    flag = np.concatenate([np.ones(splats.num, np.uint8), np.zeros(static.num, np.uint8)])
+    return GaussianScene.concat([splats, static]), {"simulated": flag}
 
 
 def frame_file_name(frame: int) -> str:
@@ -74,8 +86,11 @@ def export_splats(
     """Write ``frame_XXXX.ply`` for each frame (all by default) into ``out_dir``.
 
     ``xs`` [T, P, 3] m and ``Fs`` [T, P, 3, 3] are the simulated particle states;
-    ``sim_scene`` supplies ``splats``, ``splat_parent`` and ``splat_offset``. Each
-    file is written atomically. ``on_frame()`` is called after each file (progress).
+    ``sim_scene`` supplies ``splats``, ``splat_parent`` and ``splat_offset``. With the
+    static splats of a ``scene.region`` run (``sim_scene.static_splats``) every file
+    holds them after the simulated ones, exactly as in ``scene.ply``, and a per-splat
+    ``simulated`` property (uint8, 1 = simulated) says which is which. Each file is
+    written atomically. ``on_frame()`` is called after each file (progress).
     """
     from motionphysics.scene.ply import write_ply
 
@@ -87,7 +102,8 @@ def export_splats(
         scene = deformed_splats(
             sim_scene.splats, xs[i], Fs[i], sim_scene.splat_parent, sim_scene.splat_offset
         )
-        paths.append(write_ply(scene, out_dir / frame_file_name(int(i))))
+        scene, extra = with_static(scene, sim_scene)
+        paths.append(write_ply(scene, out_dir / frame_file_name(int(i)), extra=extra))
         if on_frame is not None:
             on_frame()
     return paths

@@ -418,7 +418,8 @@ class RunWriter:
 
     # -- what a run records ------------------------------------------------------------
     def record_scene(self, cfg, sim_scene) -> None:
-        """``scene`` block of params.json and ``scene.ply`` (prepared rest splats)."""
+        """``scene`` block of params.json and ``scene.ply`` (prepared rest splats; with a
+        ``scene.region``, the static splats after them and a per-splat ``simulated`` flag)."""
         from motionphysics.scene.ply import write_ply
 
         objects = getattr(cfg, "objects", None)
@@ -438,8 +439,15 @@ class RunWriter:
                 {"name": o.name, "source": o.source, "particles": int(c)}
                 for o, c in zip(objects, counts, strict=True)
             ]
+        from motionphysics.io.export import with_static
+
+        static = getattr(sim_scene, "static_splats", None)
+        if static is not None:
+            # scene.region: the static splats follow the simulated ones (flag `simulated`)
+            self.state["scene"]["static_splats"] = int(static.num)
+        splats, extra = with_static(sim_scene.splats, sim_scene)
         with self.rd.writing("scene.ply") as tmp:
-            write_ply(sim_scene.splats, tmp)
+            write_ply(splats, tmp, extra=extra)
         self.add_files("scene.ply")
 
     def record_camera(self, cfg, note: Mapping[str, Any], image: np.ndarray | None) -> None:
@@ -916,7 +924,8 @@ def summary_text(result: RunResult) -> str:
             f"{format_value(c['clamped'])}{src}"
         )
     scene = p.get("scene") or {}
-    for key in ("ground", "fill"):  # the default ground; why fill: true added nothing
+    # the default ground; the static scene of a region run; why fill: true added nothing
+    for key in ("ground", "static", "static_support", "fill"):
         if scene.get(key):
             lines.append(f"{key}:{' ' * (9 - len(key))} {scene[key].removeprefix(key + ': ')}")
     opt = p.get("fit") or p.get("optimise")

@@ -1,4 +1,6 @@
-"""Pinhole cameras: orbit presets, run-config cameras, INRIA ``cameras.json``.
+"""Pinhole cameras: orbit presets, run-config cameras, a capture's cameras (INRIA
+``cameras.json``, nerfstudio ``transforms.json``), moved into the world by the scene
+transform.
 
 Conventions (CONTRACTS.md): the world is z-up; camera space is OpenCV (x right,
 y down, z forward). A camera-space point ``(x, y, z)`` lands on the continuous pixel
@@ -27,6 +29,9 @@ __all__ = [
     "orbit_camera",
     "camera_from_config",
     "load_inria_cameras",
+    "load_nerfstudio_cameras",
+    "load_capture_cameras",
+    "transform_camera",
     "frame_bounds",
     "trajectory_bounds",
     "frame_trajectory",
@@ -323,20 +328,122 @@ def load_inria_cameras(path: str | Path) -> list[Camera]:
     return cams
 
 
-def camera_from_config(cfg) -> Camera:
+def load_nerfstudio_cameras(path: str | Path) -> list[Camera]:
+    """Read a nerfstudio ``transforms.json`` (also instant-ngp / Blender's layout).
+
+    Intrinsics ``fl_x, fl_y, cx, cy, w, h`` at the top level or per frame (``camera_angle_x``
+    when no focal length is given); each frame's ``transform_matrix`` is the camera-to-world
+    matrix with OpenGL axes (x right, y up, z backward), turned here into OpenCV axes. The
+    transform nerfstudio's data parser applies on top (``dataparser_transforms.json``) is
+    not read: the cameras are in the frame the file is in, the frame of a splat file
+    exported with them.
+    """
+    path = Path(path)
+    data = _read_json(path, "transforms.json")
+    if not isinstance(data, dict) or not isinstance(data.get("frames"), list) or not data["frames"]:
+        raise UserInputError(f"{path}: expected a JSON object with a non-empty 'frames' list")
+    cams = []
+    gl_to_cv = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
+    for i, frame in enumerate(data["frames"]):
+        where = f"{path}: frames[{i}]"
+        merged = {**data, **frame}  # per-frame intrinsics over the top-level ones
+
+        def get(k, merged=merged):
+            return merged.get(k)
+
+        try:
+            width, height = int(get("w")), int(get("h"))
+            if get("fl_x") is not None:
+                fx = float(get("fl_x"))
+                fy = float(get("fl_y") if get("fl_y") is not None else fx)
+            else:
+                fx = fy = 0.5 * width / math.tan(0.5 * float(get("camera_angle_x")))
+            cx = float(get("cx")) if get("cx") is not None else width / 2.0
+            cy = float(get("cy")) if get("cy") is not None else height / 2.0
+            c2w = torch.tensor(frame["transform_matrix"], dtype=torch.float64)
+        except (KeyError, TypeError, ValueError) as err:
+            raise UserInputError(
+                f"{where}: expected w, h, fl_x (or camera_angle_x) and transform_matrix "
+                f"[4][4] ({err!r})"
+            ) from None
+        if c2w.shape not in ((4, 4), (3, 4)):
+            raise UserInputError(f"{where}: transform_matrix must be [4][4] or [3][4]")
+        _check_size(width, height, where)
+        rot = c2w[:3, :3]
+        scale = (
+            float(torch.linalg.det(rot)) ** (1.0 / 3.0) if float(torch.linalg.det(rot)) > 0 else 0.0
+        )
+        if not scale > 0 or not torch.allclose(
+            rot @ rot.T, (scale**2) * torch.eye(3, dtype=torch.float64), atol=1e-4 * scale**2
+        ):
+            raise UserInputError(f"{where}: transform_matrix's rotation is not orthonormal")
+        r_cv = (rot / scale) @ gl_to_cv  # columns: the OpenCV camera axes in the world
+        w2c = torch.eye(4, dtype=torch.float64)
+        w2c[:3, :3] = r_cv.T
+        w2c[:3, 3] = -r_cv.T @ c2w[:3, 3]
+        cams.append(Camera(w2c, fx, fy, cx, cy, width, height))
+    return cams
+
+
+def _read_json(path: Path, what: str):
+    if not path.is_file():
+        raise UserInputError(f"{path}: {what} not found")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise UserInputError(f"{path}: not valid JSON ({err})") from None
+
+
+def load_capture_cameras(path: str | Path) -> list[Camera]:
+    """The cameras of a capture file: INRIA ``cameras.json`` (a JSON list) or nerfstudio
+    ``transforms.json`` (an object with ``frames``), told apart by their content."""
+    path = Path(path)
+    data = _read_json(path, "camera file")
+    if isinstance(data, list):
+        return load_inria_cameras(path)
+    if isinstance(data, dict) and "frames" in data:
+        return load_nerfstudio_cameras(path)
+    raise UserInputError(
+        f"{path}: not a camera file: expected an INRIA cameras.json (a list of cameras) or "
+        "a nerfstudio transforms.json (an object with 'frames')"
+    )
+
+
+def transform_camera(cam: Camera, source_to_world) -> Camera:
+    """``cam`` (in a capture's frame) moved by the scene transform ``x_world = s R x + t``
+    (``source_to_world`` [4, 4]): the same picture of the transformed scene."""
+    m = torch.as_tensor(source_to_world, dtype=torch.float64)
+    sr = m[:3, :3]
+    s = float(torch.linalg.det(sr)) ** (1.0 / 3.0)
+    r = sr / s
+    pos = sr @ cam.position + m[:3, 3]
+    rot_w2c = cam.rotation @ r.T
+    w2c = torch.eye(4, dtype=torch.float64)
+    w2c[:3, :3] = rot_w2c
+    w2c[:3, 3] = -rot_w2c @ pos
+    return Camera(w2c, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
+
+
+def camera_from_config(cfg, source_to_world=None) -> Camera:
     """The camera of a run config's ``camera`` section (:class:`~motionphysics.config.CameraConfig`).
 
-    With ``cameras_json`` set, view ``camera_index`` of that file (resized to the
-    config's width and height); otherwise the orbit preset.
+    With ``from`` (or ``cameras_json``) set, view ``camera_index`` of that file (resized
+    to the config's width and height), moved into the world by the scene transform
+    ``source_to_world`` [4, 4] (``SimScene.source_to_world``; None: identity);
+    otherwise the orbit preset.
     """
-    if cfg.cameras_json:
-        cams = load_inria_cameras(cfg.cameras_json)
+    path = getattr(cfg, "camera_file", None) or cfg.cameras_json
+    if path:
+        cams = load_capture_cameras(path)
         if not 0 <= cfg.camera_index < len(cams):
             raise UserInputError(
-                f"camera.camera_index: expected 0..{len(cams) - 1} for {cfg.cameras_json}, "
+                f"camera.camera_index: expected 0..{len(cams) - 1} for {path}, "
                 f"got {cfg.camera_index}"
             )
-        return cams[cfg.camera_index].resized(cfg.width, cfg.height)
+        cam = cams[cfg.camera_index]
+        if source_to_world is not None:
+            cam = transform_camera(cam, source_to_world)
+        return cam.resized(cfg.width, cfg.height)
     return orbit_camera(
         cfg.azimuth, cfg.elevation, cfg.radius, cfg.look_at, cfg.fov, cfg.width, cfg.height
     )

@@ -28,7 +28,7 @@ import torch
 from motionphysics.errors import UserInputError
 from motionphysics.scene.gaussians import GaussianScene, num_sh_coeffs
 
-__all__ = ["read_ply", "write_ply", "ply_kind", "REST_COUNTS"]
+__all__ = ["read_ply", "read_ply_property", "write_ply", "ply_kind", "REST_COUNTS"]
 
 REST_COUNTS = {0: 0, 1: 9, 2: 24, 3: 45}
 """Number of ``f_rest_*`` properties for each SH degree."""
@@ -162,7 +162,17 @@ def read_ply(path: str | Path) -> GaussianScene:
     return scene.validate(str(path))
 
 
-def _vertex_array(scene: GaussianScene) -> np.ndarray:
+def read_ply_property(path: str | Path, name: str) -> np.ndarray | None:
+    """The per-vertex property ``name`` of a ``.ply`` ([N], as stored), or None when the
+    file has no such property (e.g. ``simulated`` of a run's ``scene.ply``)."""
+    path = Path(path)
+    v = _open(path)["vertex"]
+    if name not in [p.name for p in v.properties]:
+        return None
+    return np.asarray(v.data[name])
+
+
+def _vertex_array(scene: GaussianScene, extra=None) -> np.ndarray:
     n = scene.num
     k = scene.sh.shape[1]
     rest_count = 3 * (k - 1)
@@ -185,22 +195,32 @@ def _vertex_array(scene: GaussianScene) -> np.ndarray:
         ],
         axis=1,
     ).astype("<f4", copy=False)
-    arr = np.empty(n, dtype=[(name, "<f4") for name in names])
+    extra = dict(extra or {})
+    dtype = [(name, "<f4") for name in names] + [
+        (k, np.asarray(v).dtype.newbyteorder("<").str) for k, v in extra.items()
+    ]
+    arr = np.empty(n, dtype=dtype)
     for i, name in enumerate(names):
         arr[name] = flat[:, i]
+    for k, v in extra.items():
+        if np.asarray(v).shape != (n,):
+            raise ValueError(f"write_ply: property {k} has shape {np.shape(v)}, expected ({n},)")
+        arr[k] = v
     return arr
 
 
-def write_ply(scene: GaussianScene, path: str | Path) -> Path:
+def write_ply(scene: GaussianScene, path: str | Path, extra=None) -> Path:
     """Write ``scene`` as an INRIA 3DGS ``.ply`` (reference layout, zero normals).
 
-    Written atomically (temporary file, then rename). Returns the path.
+    ``extra``: more per-splat properties after the reference ones, ``{name: [N] array}``
+    (e.g. ``simulated``, uint8), which standard viewers ignore. Written atomically
+    (temporary file, then rename). Returns the path.
     """
     from plyfile import PlyData, PlyElement
 
     path = Path(path)
     scene.validate(f"{path} (scene to write)")
-    el = PlyElement.describe(_vertex_array(scene), "vertex")
+    el = PlyElement.describe(_vertex_array(scene, extra), "vertex")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:

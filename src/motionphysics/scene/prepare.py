@@ -2,9 +2,14 @@
 
 Steps, in order (each documented at its function):
 
-1. transform: uniform ``scale``, then the ``rotate`` list in order, then ``translate``
-   (world frame). Rotation turns the quaternions and rotates SH bands 1-3 exactly.
-2. filter: drop splats with opacity < ``opacity_threshold``, then those outside ``crop``.
+1. transform: ``up`` (the capture's vertical axis turned to +z), uniform ``scale``, then
+   the ``rotate`` list in order, then ``translate`` (world frame). Rotation turns the
+   quaternions and rotates SH bands 1-3 exactly.
+2. filter: drop splats with opacity < ``opacity_threshold``, then those outside ``crop``;
+   with ``region``, only the splats inside it are simulated and the others (every
+   opacity, inside ``crop``) become the static scene (:attr:`SimScene.static_splats`),
+   as transformed and nothing else, with its collider (:mod:`motionphysics.scene.region`)
+   built on the grid once it is sized.
 3. anisotropy regularisation (PhysGaussian): raise the smallest scales so that
    largest / smallest <= ``max_anisotropy``.
 4. domain: the given ``sim.domain`` (checked), or fitted around the particles and the
@@ -106,6 +111,17 @@ class SimScene:
     (one line; :func:`_fill_note`). None otherwise."""
     fill_hollow: bool = False
     """True when ``fill_note`` says the object is simulated hollow (no enclosed cell)."""
+    static_splats: GaussianScene | None = None
+    """With ``scene.region``: the splats outside it (S of them), world frame, exactly as
+    transformed (no opacity filter, no anisotropy regularisation): drawn and exported
+    unchanged in every frame. None without a region."""
+    static_collider: object | None = None
+    """With ``scene.region`` (and ``static_collider`` not ``off``): the static splats near
+    the grid as a fixed collider (:class:`motionphysics.scene.region.StaticCollider`), or
+    None (no region, off, or no static splat on the grid)."""
+    static_note: str | None = None
+    """One line when the static scene under the simulated splats is too sparse to hold
+    them (:func:`motionphysics.scene.region.support_note`), else None."""
 
     @property
     def n_particles(self) -> int:
@@ -134,14 +150,17 @@ def rotation_matrix(axis: str, degrees: float) -> np.ndarray:
 
 
 def transform_scene(
-    scene: GaussianScene, scale: float = 1.0, rotate=(), translate=(0.0, 0.0, 0.0)
+    scene: GaussianScene, scale: float = 1.0, rotate=(), translate=(0.0, 0.0, 0.0), up="z"
 ) -> tuple[GaussianScene, np.ndarray]:
-    """Apply scale, then each rotation of ``rotate`` ([axis, degrees], in order), then translate.
+    """Turn ``up`` (the capture's vertical axis: ``scene.up``) to +z, apply scale, then each
+    rotation of ``rotate`` ([axis, degrees], in order), then translate.
 
     Returns the transformed scene (same dtype) and the 4x4 float64 matrix of the transform.
     Means and quaternions are computed in float64; SH bands >= 1 are rotated exactly.
     """
-    r = np.eye(3)
+    from motionphysics.scene.region import up_rotation
+
+    r = up_rotation(up)
     for axis, deg in rotate:
         r = rotation_matrix(axis, float(deg)) @ r
     t = np.asarray(translate, dtype=np.float64)
@@ -565,15 +584,26 @@ def _select_splats(scene: GaussianScene, scene_cfg: SceneConfig, origin_name: st
     """Steps 1-3: transform, opacity filter and crop, anisotropy regularisation.
 
     Returns (splats, source_to_world [4,4] float64 ndarray)."""
+    splats, m, _static = _select(scene, scene_cfg, origin_name)
+    return splats, m
+
+
+def _select(scene: GaussianScene, scene_cfg: SceneConfig, origin_name: str):
+    """:func:`_select_splats` and the static scene: ``(splats, source_to_world, static)``;
+    ``static`` is the GaussianScene of the splats outside ``scene.region`` (inside
+    ``crop``, any opacity, as transformed), or None without a region."""
     scene.validate(origin_name)
-    splats, m = transform_scene(scene, scene_cfg.scale, scene_cfg.rotate, scene_cfg.translate)
+    splats, m = transform_scene(
+        scene, scene_cfg.scale, scene_cfg.rotate, scene_cfg.translate, getattr(scene_cfg, "up", "z")
+    )
 
     keep = splats.opacities >= scene_cfg.opacity_threshold
     n_opaque = int(keep.sum())
+    cropped = torch.ones_like(keep)
     if scene_cfg.crop is not None:
         c = torch.tensor(scene_cfg.crop, dtype=splats.means.dtype)
         p = splats.means
-        keep &= (
+        cropped = (
             (p[:, 0] >= c[0])
             & (p[:, 0] <= c[1])
             & (p[:, 1] >= c[2])
@@ -581,6 +611,23 @@ def _select_splats(scene: GaussianScene, scene_cfg: SceneConfig, origin_name: st
             & (p[:, 2] >= c[4])
             & (p[:, 2] <= c[5])
         )
+        keep &= cropped
+    static = None
+    region = getattr(scene_cfg, "region", None)
+    if region is not None and bool(keep.any()):
+        from motionphysics.scene.region import region_mask, region_text
+
+        inside = torch.from_numpy(region_mask(splats.means.double().numpy(), region))
+        if not bool((keep & inside).any()):
+            lo = splats.means[keep].min(0).values.tolist()
+            hi = splats.means[keep].max(0).values.tolist()
+            raise UserInputError(
+                f"{origin_name}: scene.region {region_text(region)} holds none of the "
+                f"{int(keep.sum())} splats kept (they span {np.round(lo, 3).tolist()} to "
+                f"{np.round(hi, 3).tolist()} m after the scene transform); move or widen it"
+            )
+        static = splats.subset(torch.nonzero(cropped & ~inside).flatten())
+        keep &= inside
     if not bool(keep.any()):
         where = (
             f"scene.opacity_threshold={scene_cfg.opacity_threshold} kept {n_opaque} of {splats.num}"
@@ -593,7 +640,7 @@ def _select_splats(scene: GaussianScene, scene_cfg: SceneConfig, origin_name: st
         raise UserInputError(
             f"{origin_name}: no splats left to simulate ({where}); lower the threshold or widen the crop"
         )
-    return regularise_anisotropy(splats.subset(keep), scene_cfg.max_anisotropy), m
+    return regularise_anisotropy(splats.subset(keep), scene_cfg.max_anisotropy), m, static
 
 
 def selected_means(scene: GaussianScene, scene_cfg: SceneConfig) -> np.ndarray:
@@ -733,22 +780,25 @@ def prepare(
     (:func:`motion_extent`: ``sim`` initial velocity and gravity over the simulated time,
     ``forces``, and the spread of a ``material_class`` fluid or sand).
     """
-    splats, m = _select_splats(scene, scene_cfg, scene_cfg.source)
+    splats, m, static = _select(scene, scene_cfg, scene_cfg.source)
     vis = splats.means.double().numpy()  # (N,3)
     fallback = _fallback_extent(splats)
     if sim_cfg.domain is not None:
         dx, wall_lo, wall_hi = _given_domain(vis, sim_cfg.domain, sim_cfg.grid)
         keep_dims = None
     else:
+        # the static scene of a region holds the object up: its fall stops there, as on a
+        # floor (else the domain would grow for a fall through the whole simulated time)
+        planes = list(boundary_conditions) + _static_floor(static, [scene_cfg], vis, sim_cfg)
         motion = motion_extent(
             sim_cfg,
             forces,
-            boundary_conditions,
+            planes,
             material_class,
             height=_height(vis, sim_cfg.gravity),
         )
         lo, dx, keep_dims, hi = fit_domain(
-            vis, sim_cfg.grid, boundary_conditions, fallback_extent=fallback, motion=motion
+            vis, sim_cfg.grid, planes, fallback_extent=fallback, motion=motion
         )
         # the material box: the fitted box without the solver's padding cells
         wall_lo, wall_hi = lo + PAD_CELLS * dx, hi - PAD_CELLS * dx
@@ -759,6 +809,7 @@ def prepare(
         splats, scene_cfg, lo, dx
     )
     offset = vis - particles[parent]
+    collider, note_static = _static_parts(static, [scene_cfg], lo, dx, dims, particles, sim_cfg)
 
     return SimScene(
         splats=splats,
@@ -777,7 +828,57 @@ def prepare(
         wall_hi=torch.from_numpy(np.asarray(wall_hi, dtype=np.float64)).float(),
         fill_note=note,
         fill_hollow=hollow,
+        static_splats=static,
+        static_collider=collider,
+        static_note=note_static,
     )
+
+
+def _static_floor(static, cfgs, points, sim_cfg) -> list[dict]:
+    """For sizing the domain only: the static scene of a region (colliding) as a floor
+    plane under ``points`` [N, 3] m, facing against gravity; [] otherwise."""
+    if static is None or all(getattr(c, "static_collider", "off") == "off" for c in cfgs):
+        return []
+    g = np.asarray(sim_cfg.gravity, dtype=np.float64)
+    gn = float(np.linalg.norm(g))
+    if not gn > 0:
+        return []
+    up = -g / gn
+    low = points[int(np.argmin(points @ up))]
+    return [
+        {
+            "type": "surface_collider",
+            "mode": "frictional",
+            "point": tuple(float(v) for v in low),
+            "normal": tuple(float(v) for v in up),
+        }
+    ]
+
+
+def _static_parts(static, cfgs, lo, dx, dims, particles, sim_cfg):
+    """``(collider, note)`` of the static scene ``static`` (None: no region) on the grid
+    (node 0 at ``lo``, spacing ``dx``, ``dims`` nodes): the level set of
+    :func:`motionphysics.scene.region.static_collider` under the collider keys of the
+    configs with a region (which must agree), and the one-line support note."""
+    if static is None:
+        return None, None
+    from motionphysics.scene.region import static_collider, support_note
+
+    with_region = [c for c in cfgs if getattr(c, "region", None) is not None]
+    modes = {(c.static_collider, float(c.static_friction)) for c in with_region}
+    if len(modes) > 1:
+        raise UserInputError(
+            "objects: the entries with a region disagree on static_collider / "
+            "static_friction (one static scene holds them all); give the same values"
+        )
+    mode, friction = modes.pop()
+    if mode == "off":
+        return None, None
+    threshold = min(float(c.opacity_threshold) for c in with_region)
+    collider = static_collider(
+        static, threshold, lo, dx, dims, mode, friction, particles, sim_cfg.gravity
+    )
+    return collider, support_note(collider, particles, dx, sim_cfg.gravity)
 
 
 def _grown_box(points, sim_cfg, forces, boundary_conditions, material_class, velocity, fallback):
@@ -842,9 +943,17 @@ def prepare_objects(
     if len(scenes) != len(object_cfgs) or not scenes:
         raise ValueError("prepare_objects: one loaded scene per object config")
     classes = list(material_classes or [None] * len(scenes))
-    picked = []
+    picked, statics = [], {}
     for scene, ocfg in zip(scenes, object_cfgs, strict=True):
-        picked.append(_select_splats(scene, ocfg, f"objects[{ocfg.name}] {ocfg.source}"))
+        sp, m, static = _select(scene, ocfg, f"objects[{ocfg.name}] {ocfg.source}")
+        picked.append((sp, m))
+        if static is not None:
+            # objects cut from one capture (the same scene and transform) share its
+            # static scene: the splats outside every one of their regions
+            key = (id(scene), _transform_key(ocfg))
+            inside = statics.get(key, (scene, ocfg, []))[2]
+            inside.append(ocfg.region)
+            statics[key] = (scene, ocfg, inside)
     vis_all = np.concatenate([sp.means.double().numpy() for sp, _ in picked])
     if sim_cfg.domain is not None:
         dx, wall_lo, wall_hi = _given_domain(vis_all, sim_cfg.domain, sim_cfg.grid)
@@ -884,6 +993,7 @@ def prepare_objects(
     parts = [
         _particles_at(sp, ocfg, lo, dx) for (sp, _), ocfg in zip(picked, object_cfgs, strict=True)
     ]
+    static = _shared_static(statics)
     n_vis = [len(p[0]) - p[2] for p in parts]
     n_int = [p[2] for p in parts]
     vis_start = np.concatenate([[0], np.cumsum(n_vis)])
@@ -925,4 +1035,60 @@ def prepare_objects(
         )
         or None,
         fill_hollow=any(p[5][1] for p in parts),
+        static_splats=static,
+        **dict(
+            zip(
+                ("static_collider", "static_note"),
+                _static_parts(
+                    static,
+                    object_cfgs,
+                    lo,
+                    dx,
+                    dims,
+                    np.concatenate(particles),
+                    sim_cfg,
+                ),
+                strict=True,
+            )
+        ),
     )
+
+
+def _transform_key(ocfg) -> tuple:
+    """What places a capture's splats in the world (objects with equal keys share them)."""
+    return (
+        str(ocfg.up),
+        float(ocfg.scale),
+        tuple(tuple(r) for r in ocfg.rotate),
+        tuple(ocfg.translate),
+        None if ocfg.crop is None else tuple(ocfg.crop),
+    )
+
+
+def _shared_static(statics: dict) -> GaussianScene | None:
+    """The static scene of objects with regions: per capture (scene and transform), its
+    splats outside all of their regions (inside ``crop``, any opacity); captures
+    concatenated in the order of their first object. None when no object has a region."""
+    if not statics:
+        return None
+    from motionphysics.scene.region import region_mask
+
+    out = []
+    for scene, ocfg, regions in statics.values():
+        splats, _ = transform_scene(scene, ocfg.scale, ocfg.rotate, ocfg.translate, ocfg.up)
+        p = splats.means.double().numpy()
+        keep = np.ones(len(p), dtype=bool)
+        if ocfg.crop is not None:
+            c = ocfg.crop
+            keep &= (
+                (p[:, 0] >= c[0])
+                & (p[:, 0] <= c[1])
+                & (p[:, 1] >= c[2])
+                & (p[:, 1] <= c[3])
+                & (p[:, 2] >= c[4])
+                & (p[:, 2] <= c[5])
+            )
+        for region in regions:
+            keep &= ~region_mask(p, region)
+        out.append(splats.subset(torch.from_numpy(np.nonzero(keep)[0])))
+    return GaussianScene.concat(out) if len(out) > 1 else out[0]

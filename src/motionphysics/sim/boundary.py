@@ -10,7 +10,9 @@ substep (CONTRACTS.md, "sim"):
   translated / rotated particles and v = 0 of frozen ones, so P2G scatters them;
 * ``apply_grid(model, grid_v, t, substep, dt, region=None)`` -- grid conditions after the
   grid update (optionally on the active sub-box of nodes only):
-  ``clamp_grid``, ``bounding_box``, ``surface_collider`` (sticky / slip / frictional / cut);
+  ``clamp_grid``, ``bounding_box``, ``surface_collider`` (sticky / slip / frictional / cut),
+  and the static scene of a ``scene.region`` run (a level set at rest:
+  ``scene.region.StaticCollider``, given to :meth:`BoundaryProgram.build` as ``static``);
 * ``apply_post_g2p(model, state_in, state_out, t, substep, dt)`` -- additive forces
   (``add_constant_force``: an acceleration ``force`` [m/s^2], v += dt a, x += dt^2 a;
   ``add_impulse``: a velocity change ``force`` [m/s] delivered within the substep that
@@ -456,6 +458,7 @@ class BoundaryProgram:
         """The material box ``(lo, hi)`` [m] whose faces are walls (Model.walls), or None
         (legacy: particles kept in :func:`particle_bounds`, walls by ``padding`` only)."""
         self._plane_ops: list[_GridOp] = []  # colliders whose particles are projected
+        self._static_ops: list[_GridOp] = []  # the static scene (level set), projected too
         self.params: list[BoundaryParam] = []
         self.selected: dict[str, int] = {}
         self._grid_ops: list[_GridOp] = []
@@ -470,7 +473,7 @@ class BoundaryProgram:
 
     @classmethod
     def from_config(
-        cls, boundary_conditions: Sequence, forces: Sequence, model, x0=None
+        cls, boundary_conditions: Sequence, forces: Sequence, model, x0=None, static=None
     ) -> BoundaryProgram:
         """Build from config entries and a sim Model (CONTRACTS.md: Model fields used).
 
@@ -492,6 +495,7 @@ class BoundaryProgram:
             grid_dims=model.grid_dims,
             device=model.device,
             walls=getattr(model, "walls", None),
+            static=static,
         )
 
     @classmethod
@@ -506,12 +510,14 @@ class BoundaryProgram:
         grid_dims,
         device: str = "cpu",
         walls=None,
+        static=None,
     ) -> BoundaryProgram:
         """Build from config entries and explicit geometry.
 
         ``x0``: initial particle positions [m], (P, 3); ``domain_lo`` [m] (3,) position of
         node (0,0,0); ``dx`` [m]; ``grid_dims`` (nx, ny, nz) node counts; ``walls``: the
-        material box ``(lo, hi)`` [m] (Model.walls) or None.
+        material box ``(lo, hi)`` [m] (Model.walls) or None; ``static``: the static
+        scene's :class:`~motionphysics.scene.region.StaticCollider` or None.
         Bad entries raise :class:`UserInputError` naming ``boundary_conditions[i]`` / ``forces[i]``.
         """
         if hasattr(x0, "detach"):
@@ -535,7 +541,33 @@ class BoundaryProgram:
             prog._add_force(_as_model(force, Force, where), x0, where)
         if prog.walls is not None and not any(op.kind == "bounding_box" for op in prog._grid_ops):
             prog._add_domain_walls()
+        if static is not None:
+            prog._add_static(static)
         return prog
+
+    def _add_static(self, static) -> None:
+        """The static scene as a collider at rest (a level set, ``StaticCollider``): its
+        grid condition after the config's, its particle projection after the planes'."""
+        wp = init_warp()
+        if static.mode not in ("sticky", "slip", "frictional"):
+            raise UserInputError(
+                f"scene.static_collider: expected frictional, sticky or slip, got {static.mode!r}"
+            )
+        param = None
+        if static.mode == "frictional":
+            param = self._new_param("scene.static_friction", float(static.friction), "-")
+        scalars = {
+            "ls_lo": _t3(static.lo),
+            "inv_h": 1.0 / float(static.h),
+            "phi": wp.array(np.ascontiguousarray(static.phi), dtype=float, device=self.device),
+            "nrm": wp.array(np.ascontiguousarray(static.normal), dtype=wp.vec3, device=self.device),
+        }
+        op = _GridOp(
+            "scene.static_collider", _Window(0.0, math.inf, "seconds"), "static", scalars, param
+        )
+        op.scalars["mode"] = static.mode
+        self._grid_ops.append(op)
+        self._static_ops.append(op)
 
     def _add_domain_walls(self) -> None:
         """Slip walls on the faces of the material box when the config names no
@@ -759,6 +791,11 @@ class BoundaryProgram:
     def is_empty(self) -> bool:
         return not (self._grid_ops or self._particle_ops or self._cut_ops)
 
+    @property
+    def has_static(self) -> bool:
+        """Whether the static scene of a ``scene.region`` run collides."""
+        return bool(self._static_ops)
+
     # --------------------------------------------------------------------- hooks
 
     def apply_pre_p2g(self, model, state, t: float, substep: int, dt: float) -> None:
@@ -836,6 +873,30 @@ class BoundaryProgram:
                     K._bounding_box,
                     dims,
                     [off_v, s["first"], s["last"], friction],
+                    [grid_v],
+                    **kw,
+                )
+            elif op.kind == "static":
+                mode = {
+                    "sticky": K.MODE_STICKY,
+                    "slip": K.MODE_SLIP,
+                    "frictional": K.MODE_FRICTIONAL,
+                }[s["mode"]]
+                friction = op.param.array if op.param is not None else self._zero_friction()
+                _launch(
+                    K._static_grid,
+                    dims,
+                    [
+                        off_v,
+                        lo,
+                        dx,
+                        s["ls_lo"],
+                        s["inv_h"],
+                        s["phi"],
+                        s["nrm"],
+                        int(mode),
+                        friction,
+                    ],
                     [grid_v],
                     **kw,
                 )
@@ -952,6 +1013,16 @@ class BoundaryProgram:
                 K._project_plane,
                 n,
                 [s["point"], s["normal"], sticky, friction],
+                [state_out.x, state_out.v],
+                device=self.device,
+            )
+        for op in self._static_ops:
+            s = op.scalars
+            friction = op.param.array if op.param is not None else self._zero_friction()
+            _launch(
+                K._project_levelset,
+                n,
+                [s["ls_lo"], s["inv_h"], s["phi"], s["nrm"], int(s["mode"] == "sticky"), friction],
                 [state_out.x, state_out.v],
                 device=self.device,
             )

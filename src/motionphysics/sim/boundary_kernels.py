@@ -496,3 +496,136 @@ def _cut_particles(
     x_dst[p] = x
     v_dst[p] = v
     C_dst[p] = C
+
+
+# ------------------------------------------------------------ static collider (level set)
+# The static scene of a capture (``scene.region``: the splats outside it) as a signed
+# distance phi [m] sampled at ``ls_lo + (i, j, k) * h`` with its unit outward normal
+# (``scene.region.StaticCollider``); both are read trilinearly, clamped at the edges.
+
+
+@wp.func
+def _ls_coords(p: wp.vec3, ls_lo: wp.vec3, inv_h: float, shape: wp.vec3i):
+    g = (p - ls_lo) * inv_h
+    return wp.vec3(
+        wp.clamp(g[0], 0.0, float(shape[0] - 1) - 1.0e-4),
+        wp.clamp(g[1], 0.0, float(shape[1] - 1) - 1.0e-4),
+        wp.clamp(g[2], 0.0, float(shape[2] - 1) - 1.0e-4),
+    )
+
+
+@wp.func
+def _ls_phi(phi: wp.array3d(dtype=float), p: wp.vec3, ls_lo: wp.vec3, inv_h: float):
+    shape = wp.vec3i(phi.shape[0], phi.shape[1], phi.shape[2])
+    g = _ls_coords(p, ls_lo, inv_h, shape)
+    i = int(wp.floor(g[0]))
+    j = int(wp.floor(g[1]))
+    k = int(wp.floor(g[2]))
+    tx = g[0] - float(i)
+    ty = g[1] - float(j)
+    tz = g[2] - float(k)
+    c00 = phi[i, j, k] * (1.0 - tx) + phi[i + 1, j, k] * tx
+    c10 = phi[i, j + 1, k] * (1.0 - tx) + phi[i + 1, j + 1, k] * tx
+    c01 = phi[i, j, k + 1] * (1.0 - tx) + phi[i + 1, j, k + 1] * tx
+    c11 = phi[i, j + 1, k + 1] * (1.0 - tx) + phi[i + 1, j + 1, k + 1] * tx
+    c0 = c00 * (1.0 - ty) + c10 * ty
+    c1 = c01 * (1.0 - ty) + c11 * ty
+    return c0 * (1.0 - tz) + c1 * tz
+
+
+@wp.func
+def _ls_normal(nrm: wp.array3d(dtype=wp.vec3), p: wp.vec3, ls_lo: wp.vec3, inv_h: float):
+    shape = wp.vec3i(nrm.shape[0], nrm.shape[1], nrm.shape[2])
+    g = _ls_coords(p, ls_lo, inv_h, shape)
+    i = int(wp.floor(g[0]))
+    j = int(wp.floor(g[1]))
+    k = int(wp.floor(g[2]))
+    tx = g[0] - float(i)
+    ty = g[1] - float(j)
+    tz = g[2] - float(k)
+    c00 = nrm[i, j, k] * (1.0 - tx) + nrm[i + 1, j, k] * tx
+    c10 = nrm[i, j + 1, k] * (1.0 - tx) + nrm[i + 1, j + 1, k] * tx
+    c01 = nrm[i, j, k + 1] * (1.0 - tx) + nrm[i + 1, j, k + 1] * tx
+    c11 = nrm[i, j + 1, k + 1] * (1.0 - tx) + nrm[i + 1, j + 1, k + 1] * tx
+    c0 = c00 * (1.0 - ty) + c10 * ty
+    c1 = c01 * (1.0 - ty) + c11 * ty
+    n = c0 * (1.0 - tz) + c1 * tz
+    ln = wp.length(n)
+    out = wp.vec3(0.0, 0.0, 1.0)
+    if ln > 1.0e-6:
+        out = n / ln
+    return out
+
+
+@wp.kernel
+def _static_grid(
+    off: wp.vec3i,
+    lo: wp.vec3,
+    dx: float,
+    ls_lo: wp.vec3,
+    inv_h: float,
+    phi: wp.array3d(dtype=float),
+    nrm: wp.array3d(dtype=wp.vec3),
+    mode: int,
+    friction: wp.array(dtype=float),
+    src_off: wp.vec3i,
+    v_src: wp.array3d(dtype=wp.vec3),
+    v_dst: wp.array3d(dtype=wp.vec3),
+):
+    # Nodes on or inside the static scene (phi <= 0) are in contact with a collider at
+    # rest: sticky -> 0; slip -> the velocity into it (along its normal) removed;
+    # frictional -> Coulomb on what remains (as _surface_collider, with the level set's
+    # normal). Particles that reach behind its surface are projected by _project_levelset.
+    i, j, k = wp.tid()
+    i = i + off[0]
+    j = j + off[1]
+    k = k + off[2]
+    v = v_src[i - src_off[0], j - src_off[1], k - src_off[2]]
+    xn = _node_pos(i, j, k, lo, dx)
+    d = _ls_phi(phi, xn, ls_lo, inv_h)
+    if d <= CONTACT_TOL * dx:
+        if mode == MODE_STICKY:
+            v = wp.vec3(0.0, 0.0, 0.0)
+        else:
+            n = _ls_normal(nrm, xn, ls_lo, inv_h)
+            vn = wp.dot(v, n)
+            if vn < 0.0:
+                vt = v - vn * n
+                if mode == MODE_SLIP:
+                    v = vt
+                else:
+                    v = _coulomb(vt, -vn, friction[0])
+    v_dst[i, j, k] = v
+
+
+@wp.kernel
+def _project_levelset(
+    ls_lo: wp.vec3,
+    inv_h: float,
+    phi: wp.array3d(dtype=float),
+    nrm: wp.array3d(dtype=wp.vec3),
+    sticky: int,
+    friction: wp.array(dtype=float),
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    # After G2P: a particle behind the static scene's surface (phi < 0) is moved onto it
+    # along the normal (x - phi n) and its velocity into it removed (sticky: all of it),
+    # with Coulomb friction on the rest (as _project_plane does for a collider plane).
+    p = wp.tid()
+    x = x_src[p]
+    v = v_src[p]
+    d = _ls_phi(phi, x, ls_lo, inv_h)
+    if d < 0.0:
+        n = _ls_normal(nrm, x, ls_lo, inv_h)
+        x = x - d * n
+        if sticky != 0:
+            v = wp.vec3(0.0, 0.0, 0.0)
+        else:
+            vn = wp.dot(v, n)
+            if vn < 0.0:
+                v = _coulomb(v - vn * n, -vn, friction[0])
+    x_dst[p] = x
+    v_dst[p] = v

@@ -142,14 +142,18 @@ def build_simulation(
     # BoundaryProgram adds them; ``boundary_conditions`` null -- the default ground not
     # yet resolved by the assembly -- is read as none)
     bcs = list(run_cfg.boundary_conditions or [])
-    if bcs or run_cfg.forces or walls is not None:
+    # (the static scene of a ``scene.region`` run: a level set at rest, scene.region)
+    static = getattr(sim_scene, "static_collider", None)
+    if bcs or run_cfg.forces or walls is not None or static is not None:
         try:
             from motionphysics.sim.boundary import BoundaryProgram
         except ImportError as err:  # pragma: no cover - the boundary module ships with sim
             raise UserInputError(
                 "boundary_conditions/forces: the boundary module is not available in this build"
             ) from err
-        model.boundary = BoundaryProgram.from_config(bcs, list(run_cfg.forces), model)
+        model.boundary = BoundaryProgram.from_config(
+            bcs, list(run_cfg.forces), model, static=static
+        )
     if sim_cfg.substeps == "auto":
         substeps = auto_substeps(material_sim, model.dx, sim_cfg.frame_dt)
     else:

@@ -1,0 +1,88 @@
+"""The scene phase of the assembly for a region of a capture (``scene.region``).
+
+What :mod:`motionphysics.assembly` asks of a run whose config simulates a region of a
+capture and keeps the rest (the static scene, ``SimScene.static_splats``):
+
+* :func:`region_ground` -- the support. With a region and ``boundary_conditions`` left
+  out, no floor is added: the static scene holds the object up (its collider,
+  ``scene.region.StaticCollider``); ``run.yaml`` records ``boundary_conditions: []``.
+* :func:`static_splats_view` -- the static splats as the renderer draws them (unchanged
+  means and covariances, colours from their SH for the camera), appended to every frame.
+* :func:`static_lines` -- the summary's ``static`` line and the support warning.
+
+This module builds no simulation and writes no file.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["has_region", "region_ground", "static_lines", "static_splats_view"]
+
+STATIC_GROUND = (
+    "ground: the static scene outside scene.region holds the object (no floor added: "
+    "boundary_conditions left out; give a surface_collider there to add one)"
+)
+
+
+def has_region(cfg) -> bool:
+    """Whether the config simulates a region of a capture (``scene.region`` or an
+    ``objects:`` entry's ``region``)."""
+    if cfg.objects is not None:
+        return any(o.region is not None for o in cfg.objects)
+    return cfg.scene.region is not None
+
+
+def region_ground(cfg) -> tuple[Any, str] | None:
+    """``(cfg with boundary_conditions: [], the ground line)`` when the config has a region
+    and leaves ``boundary_conditions`` out (the static scene is the support), else None."""
+    if cfg.boundary_conditions is not None or not has_region(cfg):
+        return None
+    return cfg.model_copy(update={"boundary_conditions": []}), STATIC_GROUND
+
+
+def static_splats_view(sim_scene, camera, like) -> dict[str, Any] | None:
+    """The static splats of ``sim_scene`` for the renderer: ``{means [S, 3] m, covs
+    [S, 3, 3] m^2, colors [S, 3], opacities [S]}`` torch tensors of ``like``'s dtype and
+    device (colours from their SH as seen from ``camera``), or None without any."""
+    static = getattr(sim_scene, "static_splats", None)
+    if static is None or static.num == 0:
+        return None
+    from motionphysics.render.sh import sh_to_rgb
+
+    means = static.means.to(like)
+    colors = sh_to_rgb(static.sh.to(like), means - camera.position.to(like)).clamp(0, 1)
+    return {
+        "means": means,
+        "covs": static.covariances().to(like),
+        "colors": colors,
+        "opacities": static.opacities.to(like),
+    }
+
+
+def static_lines(sim_scene) -> tuple[str | None, str | None]:
+    """``(info, warning)`` lines about the static scene of a region run (None, None
+    without one): how many static splats there are and how many collide, at what
+    resolution, the unseen support filled; and the support warning
+    (``SimScene.static_note``) when it is too sparse to hold the object."""
+    static = getattr(sim_scene, "static_splats", None)
+    if static is None:
+        return None, None
+    col = getattr(sim_scene, "static_collider", None)
+    if col is None:
+        info = (
+            f"static: {static.num} splats outside scene.region, drawn in every frame; none collide"
+        )
+    else:
+        info = (
+            f"static: {static.num} splats outside scene.region, drawn in every frame; "
+            f"{col.splats} of them near the grid collide ({col.mode}"
+            + (f", friction {col.friction:g}" if col.mode == "frictional" else "")
+            + f"; a level set at {col.h:.3g} m)"
+        )
+        if col.filled:
+            info += (
+                f"; the support the capture cannot see under the region filled at "
+                f"z = {col.fill_height:.4g} m ({col.filled} columns)"
+            )
+    return info, getattr(sim_scene, "static_note", None)
