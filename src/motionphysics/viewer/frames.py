@@ -53,6 +53,26 @@ class Frame:
     opacities: np.ndarray
 
 
+def _static_arrays(static, camera):
+    """(means [S, 3], covs [S, 3, 3], colours [S, 3], opacities [S, 1]) float32 of the
+    static splats of a region run as the video draws them, or None."""
+    if static is None or static.num == 0:
+        return None
+    import torch
+
+    from motionphysics.render.sh import sh_to_rgb
+
+    with torch.no_grad():
+        means = static.means.float()
+        colors = sh_to_rgb(static.sh.float(), means - camera.position.to(means)).clamp(0, 1)
+        return (
+            means.numpy(),
+            static.covariances().float().numpy(),
+            colors.numpy(),
+            static.opacities.float().numpy()[:, None],
+        )
+
+
 class FrameSource:
     """Deformed splats of a run, one frame at a time.
 
@@ -95,6 +115,7 @@ class FrameSource:
         self._used = used
         self._local_parent = torch.from_numpy(inverse.astype(np.int64))
         self._opacities = self._splats.opacities.detach().numpy().astype(np.float32)[:, None]
+        self._static = _static_arrays(getattr(run, "static", None), camera)
         self._cache: OrderedDict[int, Frame] = OrderedDict()
         frame_bytes = 64 * max(self._splats.num, 1)  # means, covs, colours, opacity: float32
         self._cache_size = max(1, min(int(cache), CACHE_BYTES // frame_bytes))
@@ -130,13 +151,15 @@ class FrameSource:
                 means, covs, colors = deform_splats(
                     self._splats, x, F, self._local_parent, self._offset, self.camera
                 )
-            out = Frame(
-                k,
+            parts = [
                 means.numpy().astype(np.float32, copy=False),
                 covs.numpy().astype(np.float32, copy=False),
                 colors.clamp(0.0, 1.0).numpy().astype(np.float32, copy=False),
                 self._opacities,
-            )
+            ]
+            if self._static is not None:  # a region run: the static scene, unchanged
+                parts = [np.concatenate([a, b]) for a, b in zip(parts, self._static, strict=True)]
+            out = Frame(k, *parts)
             self._cache[k] = out
             while len(self._cache) > self._cache_size:
                 self._cache.popitem(last=False)

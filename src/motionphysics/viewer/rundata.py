@@ -104,6 +104,7 @@ class RunData:
         offset: ``[N, 3]`` float32 rest offset splat - parent [m].
         log: records of ``log.jsonl`` (empty when the run was not optimised).
         metrics: metrics.json (empty dict when absent).
+        static: the static splats of a ``scene.region`` run, or None.
     """
 
     path: Path
@@ -118,6 +119,9 @@ class RunData:
     offset: np.ndarray
     log: list[dict[str, Any]] = field(default_factory=list)
     metrics: dict[str, Any] = field(default_factory=dict)
+    static: Any = None
+    """The static splats of a ``scene.region`` run (scene.ply's splats whose ``simulated``
+    flag is 0), drawn unchanged in every frame; None for other runs."""
 
     @property
     def num_frames(self) -> int:
@@ -205,6 +209,7 @@ def load_run(path: str | Path, notes: list[str] | None = None) -> RunData:
         raise UserInputError(f"{path}: not a run directory (no such directory)")
     missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
     rebuild = missing == ["scene.ply"]
+    static = None
     if missing and not rebuild:
         raise UserInputError(
             f"{path}: not a viewable run directory: missing {', '.join(missing)} "
@@ -245,7 +250,17 @@ def load_run(path: str | Path, notes: list[str] | None = None) -> RunData:
                 f"({config.scene.source}), matching the trajectory's splat_parent"
             )
     else:
+        from motionphysics.scene.ply import read_ply_property
+
         splats = read_ply(path / "scene.ply")
+        flag = read_ply_property(path / "scene.ply", "simulated")
+        if flag is not None:
+            # scene.region: the simulated splats first, then the static scene (flag 0)
+            import torch
+
+            sim = np.asarray(flag) != 0
+            static = splats.subset(torch.from_numpy(np.nonzero(~sim)[0]))
+            splats = splats.subset(torch.from_numpy(np.nonzero(sim)[0]))
     N = splats.num
     if parent.shape != (N,) or offset.shape != (N, 3):
         raise UserInputError(
@@ -272,4 +287,5 @@ def load_run(path: str | Path, notes: list[str] | None = None) -> RunData:
         offset=offset,
         log=log,
         metrics=metrics if isinstance(metrics, dict) else {},
+        static=static,
     )

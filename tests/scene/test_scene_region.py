@@ -1,0 +1,199 @@
+"""scene.region, scene.up and the static collider (issue 25), on builtin scenes: the
+splats outside the region are kept exactly as transformed, the static scene becomes a
+level set that holds a body up, the up axis turns a capture's vertical to +z, and the
+capture's cameras follow the scene transform."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from motionphysics.config import RunConfig, load_config
+from motionphysics.errors import UserInputError
+from motionphysics.scene import load_scene
+from motionphysics.scene.gaussians import GaussianScene
+from motionphysics.scene.prepare import prepare, transform_scene
+from motionphysics.scene.region import region_mask, up_rotation
+
+
+def _slab_and_ball() -> GaussianScene:
+    """A 0.6 m square slab of flat splats (the table) at z = 0 and a sphere on it."""
+    ball, _ = transform_scene(load_scene("builtin:sphere"), 0.1, [], (0.0, 0.0, 0.105))
+    g = np.linspace(-0.3, 0.3, 61)
+    xx, yy = np.meshgrid(g, g, indexing="ij")
+    n = xx.size
+    means = torch.tensor(np.stack([xx.ravel(), yy.ravel(), np.zeros(n)], 1), dtype=torch.float32)
+    k = ball.sh.shape[1]
+    sh = torch.zeros((n, k, 3))
+    sh[:, 0, :] = 0.5
+    slab = GaussianScene(
+        means=means,
+        log_scales=torch.log(torch.tensor([[0.008, 0.008, 0.001]]).expand(n, 3).clone()),
+        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(n, 4).clone(),
+        logit_opacities=torch.full((n,), 4.0),
+        sh=sh,
+    )
+    return GaussianScene.concat([ball, slab])
+
+
+def _cfg(**scene) -> RunConfig:
+    return RunConfig.model_validate(
+        {
+            "scene": {"source": "x.ply", "max_particles": 2000, **scene},
+            "sim": {"grid": 24, "frames": 4},
+            "boundary_conditions": [],
+        }
+    )
+
+
+def test_up_rotation_turns_the_named_axis_to_z():
+    for up, v in (("y", (0, 1, 0)), ("-y", (0, -1, 0)), ("x", (1, 0, 0)), ("-z", (0, 0, -1))):
+        r = up_rotation(up)
+        assert np.allclose(r @ np.array(v, float), [0, 0, 1], atol=1e-15)
+        assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
+    assert np.array_equal(up_rotation("z"), np.eye(3))
+    u = np.array([0.03, -0.75, -0.66])
+    assert np.allclose(up_rotation(list(u)) @ (u / np.linalg.norm(u)), [0, 0, 1])
+
+
+def test_region_keeps_the_rest_of_the_scene_unchanged_and_colliding():
+    scene = _slab_and_ball()
+    cfg = _cfg(region={"sphere": [[0.0, 0.0, 0.105], 0.12]})
+    ss = prepare(scene, cfg.scene, cfg.sim, [], [])
+    inside = region_mask(scene.means.double().numpy(), cfg.scene.region)
+    assert ss.splats.num == int(inside.sum()) and ss.static_splats.num == int((~inside).sum())
+    # the static splats exactly as given (identity transform: the input's bits)
+    for name in ("means", "log_scales", "quats", "logit_opacities", "sh"):
+        assert torch.equal(
+            getattr(ss.static_splats, name), getattr(scene, name)[~torch.from_numpy(inside)]
+        )
+    col = ss.static_collider
+    assert col is not None and col.mode == "frictional" and col.friction == pytest.approx(0.3)
+    assert col.h == pytest.approx(ss.dx / 4)
+    # the slab's top is the level set's zero, within a cell; inside negative, above positive
+    probe = np.array([[0.15, 0.0, 0.0], [0.15, 0.0, ss.dx], [0.15, 0.0, -0.25 * col.h]])
+    phi = col.sample(probe)
+    assert phi[0] <= 0 < phi[1] and phi[2] < 0
+    assert ss.static_note is None  # a full slab holds the ball
+
+
+def test_crop_discards_what_region_keeps():
+    scene = _slab_and_ball()
+    cropped = _cfg(crop=[-0.12, 0.12, -0.12, 0.12, 0.0, 0.3])
+    ss = prepare(scene, cropped.scene, cropped.sim, [], [])
+    assert ss.static_splats is None and ss.static_collider is None
+
+
+def test_a_region_over_thin_air_says_the_static_scene_is_too_sparse():
+    ball, _ = transform_scene(load_scene("builtin:sphere"), 0.1, [], (0.0, 0.0, 0.5))
+    wall, _ = transform_scene(load_scene("builtin:cube"), 0.1, [], (0.6, 0.0, 0.5))
+    cfg = _cfg(region={"box": [[-0.2, -0.2, 0.3], [0.2, 0.2, 0.7]]})
+    ss = prepare(GaussianScene.concat([ball, wall]), cfg.scene, cfg.sim, [], [])
+    assert ss.static_note is not None and ss.static_note.startswith("static scene: only ")
+    assert "may fall through" in ss.static_note and "\n" not in ss.static_note
+
+
+def test_region_errors_are_one_line(tmp_path):
+    scene = _slab_and_ball()
+    cfg = _cfg(region={"box": [[2.0, 2.0, 2.0], [3.0, 3.0, 3.0]]})
+    with pytest.raises(UserInputError, match=r"scene.region \{box: .* holds none of the"):
+        prepare(scene, cfg.scene, cfg.sim, [], [])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("scene: {region: {box: [[1, 0, 0], [0, 1, 1]]}}\n")
+    with pytest.raises(UserInputError, match="min < max"):
+        load_config(bad)
+    bad.write_text("scene: {static_collider: sticky}\n")
+    with pytest.raises(UserInputError, match="only with scene.region"):
+        load_config(bad)
+    bad.write_text("scene: {up: [0, 0, 0]}\n")
+    with pytest.raises(UserInputError, match="non-zero"):
+        load_config(bad)
+
+
+def test_static_collider_holds_a_ball_on_a_table_of_splats(tmp_path):
+    """The static slab holds the simulated ball with no collider plane in the config."""
+    from motionphysics.scene.ply import write_ply
+
+    src = tmp_path / "table.ply"
+    write_ply(_slab_and_ball(), src)
+    cfg = RunConfig.model_validate(
+        {
+            "scene": {
+                "source": str(src),
+                "region": {"sphere": [[0.0, 0.0, 0.105], 0.12]},
+                "max_particles": 1500,
+            },
+            "material": {"class": "elastic", "density": 1000.0, "E": 1.0e5, "nu": 0.3},
+            "sim": {"grid": 20, "frames": 8, "frame_dt": 0.04, "substeps": 40},
+            "camera": {"width": 16, "height": 16},
+        }
+    )
+    from motionphysics.assembly import assemble
+
+    parts = assemble(cfg, reference_image=False)
+    assert parts.cfg.boundary_conditions == []  # no floor: the static scene holds it
+    assert parts.scene_notes["ground"].startswith("ground: the static scene")
+    xs, _Fs, _vs, _n = parts.simulate()
+    lowest = xs[:, :, 2].min(axis=1)
+    assert lowest.min() > -0.1 * parts.sim_scene.dx  # never through the table
+    assert lowest[-1] < 2.0 * parts.sim_scene.dx
+
+
+def test_capture_cameras_follow_the_scene_transform(tmp_path):
+    """A nerfstudio transforms.json and the same view as INRIA cameras.json give one camera;
+    moved by the scene transform, a point keeps its pixel."""
+    from motionphysics.render.camera import load_capture_cameras, transform_camera
+
+    c2w_cv = np.eye(3)[:, [0, 1, 2]] @ np.diag([1.0, 1.0, 1.0])
+    rot = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # a camera looking along +y
+    pos = np.array([0.1, -2.0, 0.3])
+    del c2w_cv
+    (tmp_path / "cameras.json").write_text(
+        json.dumps(
+            [
+                {
+                    "id": 0,
+                    "img_name": "a",
+                    "width": 64,
+                    "height": 48,
+                    "position": pos.tolist(),
+                    "rotation": rot.tolist(),
+                    "fx": 50.0,
+                    "fy": 50.0,
+                }
+            ]
+        )
+    )
+    gl = rot @ np.diag([1.0, -1.0, -1.0])  # OpenGL axes of the same camera
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = gl, pos
+    (tmp_path / "transforms.json").write_text(
+        json.dumps(
+            {
+                "w": 64,
+                "h": 48,
+                "fl_x": 50.0,
+                "fl_y": 50.0,
+                "frames": [{"transform_matrix": m.tolist()}],
+            }
+        )
+    )
+    a = load_capture_cameras(tmp_path / "cameras.json")[0]
+    b = load_capture_cameras(tmp_path / "transforms.json")[0]
+    assert torch.allclose(a.world_to_cam, b.world_to_cam, atol=1e-12)
+    p = torch.tensor([[0.3, 1.0, 0.2]], dtype=torch.float64)
+    uv, z = a.project(p)
+    assert z.item() > 0
+    s2w = np.eye(4)
+    s2w[:3, :3] = 0.04 * up_rotation("y")
+    s2w[:3, 3] = [0.5, -0.2, 0.1]
+    moved = transform_camera(a, torch.from_numpy(s2w))
+    pw = torch.from_numpy((s2w[:3, :3] @ p.numpy()[0] + s2w[:3, 3])[None])
+    uv2, _ = moved.project(pw)
+    assert torch.allclose(uv, uv2, atol=1e-9)
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(UserInputError, match="not a camera file"):
+        load_capture_cameras(tmp_path / "bad.json")
