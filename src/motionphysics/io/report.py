@@ -96,7 +96,10 @@ def physical_rows(metrics: Mapping[str, Any]) -> list[tuple[str, Any, str]]:
             "Hz" if f else "",
         )
     )
-    rows.append(("extent damping ratio", osc.get("damping_ratio"), "–"))
+    zeta = osc.get("damping_ratio")  # null with the reason when there is no free decay
+    rows.append(
+        ("extent damping ratio", zeta if zeta is not None else osc.get("damping_reason"), "–")
+    )
     return rows
 
 

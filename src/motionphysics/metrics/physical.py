@@ -85,18 +85,24 @@ def oscillation(
     ``min_periods`` periods inside the clip (a spectrum peak at one or two bins is the
     clip length, not an oscillation); otherwise ``frequency_hz`` is None and
     ``frequency_reason`` says why (``frequency_peak_hz`` keeps the raw peak).
-    Damping is the mean logarithmic decrement of successive positive peaks converted to
-    a damping ratio ``zeta = delta / sqrt(4 pi^2 + delta^2)``; ``None`` when fewer than
-    two peaks or the frequency is not resolved.
-    Returns ``{"frequency_hz", "damping_ratio", "amplitude", "frequency_reason",
-    "frequency_peak_hz", "nyquist_hz"}`` (amplitude: half the peak-to-peak of the
-    detrended signal, in the signal's unit).
+    Damping is measured on the free decay: the positive peaks from the largest one on
+    (what comes before it is the excitation: a fall, a landing), their mean logarithmic
+    decrement converted to a damping ratio ``zeta = delta / sqrt(4 pi^2 + delta^2)``.
+    It is ``None`` with ``damping_reason`` when the frequency is not resolved, when
+    fewer than two peaks follow the largest, or when those peaks do not decay steadily
+    (one grows by more than 5 %: a driven swing, or a body that rocks onto another face
+    and changes its resting shape; there is no free decay to measure, where a negative
+    ratio used to be reported).
+    Returns ``{"frequency_hz", "damping_ratio", "damping_reason", "amplitude",
+    "frequency_reason", "frequency_peak_hz", "nyquist_hz"}`` (amplitude: half the
+    peak-to-peak of the detrended signal, in the signal's unit).
     """
     y = np.asarray(signal, dtype=np.float64)
     n = y.size
     out: dict[str, Any] = {
         "frequency_hz": None,
         "damping_ratio": None,
+        "damping_reason": "the frequency is not resolved",
         "amplitude": 0.0,
         "frequency_reason": None,
         "frequency_peak_hz": None,
@@ -137,13 +143,29 @@ def oscillation(
         return out
     out["frequency_hz"] = f
     peaks = [i for i in range(1, n - 1) if r[i] > r[i - 1] and r[i] >= r[i + 1] and r[i] > 0]
-    if len(peaks) >= 2:
-        vals = np.array([r[i] for i in peaks])
-        ratios = vals[:-1] / np.maximum(vals[1:], 1e-12)
-        ratios = ratios[ratios > 0]
-        if ratios.size:
-            delta = float(np.mean(np.log(ratios)))
-            out["damping_ratio"] = delta / math.sqrt(4 * math.pi**2 + delta**2)
+    if peaks:
+        top = max(range(len(peaks)), key=lambda j: r[peaks[j]])
+        peaks = peaks[top:]  # the free decay starts at the largest swing
+    if len(peaks) < 2:
+        out["damping_reason"] = (
+            f"not measurable: {len(peaks)} peak after the largest swing (2 needed)"
+            if peaks
+            else "not measurable: no peak"
+        )
+        return out
+    vals = np.array([r[i] for i in peaks])
+    logs = np.log(vals[:-1] / np.maximum(vals[1:], 1e-12))
+    delta = float(np.mean(logs))
+    if delta <= 0.0 or np.any(logs < -0.05):  # 5 %: peaks equal within sampling noise
+        out["damping_reason"] = (
+            "not measurable: the peaks after the largest swing do not decay steadily ("
+            + ", ".join(f"{v:.3g}" for v in vals[:4])
+            + (", ..." if len(vals) > 4 else "")
+            + "): the swing is driven or the body changed its resting shape, not a free decay"
+        )
+        return out
+    out["damping_ratio"] = delta / math.sqrt(4 * math.pi**2 + delta**2)
+    out["damping_reason"] = None
     return out
 
 
