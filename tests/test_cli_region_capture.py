@@ -48,11 +48,25 @@ CONFIG = {
 }
 
 
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    root = tmp_path_factory.mktemp("region_capture")
+PUSH = {
+    **CONFIG,
+    "prompt": "A plastic camera is pushed across the wooden table and stops.",
+    # stiffer than the toss's: the capture is a shell (no interior fill at this grid), and
+    # a soft shell pushed sideways folds over the table's edge behind it
+    "material": {"class": "elastic", "density": 800.0, "E": 2.0e6, "nu": 0.3},
+    "sim": {"grid": 32, "frames": 14, "frame_dt": 0.04},
+    "forces": [{"type": "add_impulse", "force": [0.25, 0.0, 0.15], "start": 0.0}],
+}
+"""A push: the camera hops sideways off the place it stood and slides to a stop on the
+sparse part of the table (the gaps between its splats closed, scene.region)."""
+
+
+@pytest.fixture(scope="module", params=["toss", "push"])
+def run_dir(tmp_path_factory, request):
+    root = tmp_path_factory.mktemp(f"region_capture_{request.param}")
     cfg = root / "camera_on_table.yaml"
-    cfg.write_text(yaml.safe_dump(CONFIG, sort_keys=False))
+    data = CONFIG if request.param == "toss" else PUSH
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
     out = root / "run"
     assert main(["run", str(cfg), "--out", str(out), "--quiet"]) == 0
     return out
@@ -84,7 +98,7 @@ def test_static_splats_are_bit_identical_to_the_input_in_every_frame(run_dir):
     scene, sim = _static_and_sim(run_dir / "scene.ply")
     assert (~sim).sum() == expected.num > 4000  # the table, the strap, the room
     frames = sorted((run_dir / "splats").glob("frame_*.ply"))
-    assert len(frames) == CONFIG["sim"]["frames"]
+    assert len(frames) == np.load(run_dir / "trajectory.npz")["x"].shape[0] >= 12
     for f in [run_dir / "scene.ply", *frames]:
         splats, sim_f = _static_and_sim(f)
         assert np.array_equal(sim_f, sim)
@@ -119,9 +133,9 @@ def test_the_camera_moves_and_comes_to_rest_on_the_table(run_dir):
     x = traj["x"].astype(np.float64)
     dx = float(traj["dx"])
     lowest = x[:, :, 2].min(axis=1)  # [T] the camera's lowest particle
-    # it moved: tossed up (over a cell higher), and it does not end where it started
-    assert (lowest.max() - lowest[0]) > 0.3 * dx
+    # it moved: it does not end where it started
     assert np.abs(x[-1] - x[0]).max() > 0.1 * dx
+    assert np.abs(x - x[0]).max() > 0.3 * dx
     # it rests on the table: within 2 cells above its top, never more than 0.1 cell below
     assert top - 0.1 * dx <= lowest[-1] <= top + 2.0 * dx, ((lowest - top) / dx).round(2)
     assert (lowest >= top - 0.1 * dx).all(), ((lowest - top) / dx).round(2)

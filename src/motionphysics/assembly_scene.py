@@ -85,4 +85,6 @@ def static_lines(sim_scene) -> tuple[str | None, str | None]:
                 f"; the support the capture cannot see under the region filled at "
                 f"z = {col.fill_height:.4g} m ({col.filled} columns)"
             )
+        if col.closed:
+            info += f"; {col.closed} columns of gaps in the support closed"
     return info, getattr(sim_scene, "static_note", None)

@@ -148,6 +148,9 @@ class StaticCollider:
     """Columns of unseen support filled under the simulated splats (:func:`_fill_support`)."""
     fill_height: float | None = None
     """Height [m] of the filled support's top (the static support around it), or None."""
+    closed: int = 0
+    """Columns of gaps in the support (up to :data:`SUPPORT_GAP` dx wide) closed
+    (:func:`_close_support`)."""
 
     def sample(self, points: np.ndarray) -> np.ndarray:
         """phi [m] at ``points`` [N, 3] (trilinear, clamped at the edges), float64 [N]."""
@@ -215,11 +218,13 @@ def static_collider(
         occ &= ~small[labels]
     if not occ.any():
         return None
-    filled, fill_height = 0, None
+    filled, fill_height, closed = 0, None, 0
     g = np.asarray(gravity, dtype=np.float64)
     gn = float(np.linalg.norm(g))
     if simulated is not None and gn > 0 and g[2] / gn < -0.99:
-        filled, fill_height = _fill_support(occ, origin, h, np.asarray(simulated, np.float64))
+        pts = np.asarray(simulated, np.float64)
+        filled, fill_height = _fill_support(occ, origin, h, pts)
+        closed = _close_support(occ, origin, h, pts)
     outside = ndimage.distance_transform_edt(~occ) * h  # free samples: to the nearest occupied
     inside = ndimage.distance_transform_edt(occ) * h  # occupied: to the nearest free one
     # half a cell back: the surface is the occupied cells' boundary, between two samples
@@ -240,6 +245,7 @@ def static_collider(
         cells=int(occ.sum()),
         filled=filled,
         fill_height=fill_height,
+        closed=closed,
     )
 
 
@@ -279,12 +285,7 @@ def _fill_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray
     foot[cell[:, 0], cell[:, 1]] = True
     foot = ndimage.binary_dilation(foot, iterations=1)
     ring = ndimage.binary_dilation(foot, iterations=FILL_RING) & ~foot
-    k_low = int(cell[:, 2].min())
-    k0 = max(0, k_low - 2 * LEVELSET_REFINE)
-    k1 = min(nz, k_low + 2)
-    band = occ[:, :, k0:k1]
-    has = band.any(axis=2)
-    top = k0 + (k1 - k0 - 1) - np.argmax(band[:, :, ::-1], axis=2)  # highest occupied k
+    k0, _k1, has, top = _support_band(occ, origin, h, pts)
     ring_has = has & ring
     if ring_has.sum() < max(FILL_MIN_COLUMNS, FILL_MIN_RING * ring.sum()):
         return 0, None
@@ -298,6 +299,52 @@ def _fill_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray
     for k in range(k0, k_top + 1):
         occ[ii, jj, k] = True
     return int(empty.sum()), float(origin[2] + (k_top + 1) * h)
+
+
+SUPPORT_GAP = 3.0
+"""Gaps in the static support near the simulated splats' lowest point up to this many dx
+wide (across gravity) are closed: a captured table is sparse (its splats scattered
+over the wood, most of them behind the object's own), and a body must not fall
+through the holes between them."""
+
+
+def _support_band(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray):
+    """``(k0, k1, has [nx, ny], top [nx, ny])``: the band of levels (cells) from 2 dx below
+    the lowest of ``pts`` to 2 cells above it, which columns hold a static cell in it, and
+    the highest such cell of each column."""
+    nz = occ.shape[2]
+    k_low = int(np.clip(np.floor((pts[:, 2].min() - origin[2]) / h), 0, nz - 1))
+    k0 = max(0, k_low - 2 * LEVELSET_REFINE)
+    k1 = min(nz, k_low + 2)
+    band = occ[:, :, k0:k1]
+    top = k0 + (k1 - k0 - 1) - np.argmax(band[:, :, ::-1], axis=2)
+    return k0, k1, band.any(axis=2), top
+
+
+def _close_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray) -> int:
+    """Close, in place, the gaps of the static support near the simulated ``pts``' lowest
+    point: in the band of :func:`_support_band`, the columns without a static cell that
+    a closing by a disk of :data:`SUPPORT_GAP` dx (across gravity) covers are filled
+    from the band's bottom up to the top of the nearest column that has one. Returns
+    how many columns were filled."""
+    from scipy import ndimage
+
+    k0, k1, has, top = _support_band(occ, origin, h, pts)
+    if not has.any():
+        return 0
+    r = int(round(SUPPORT_GAP * LEVELSET_REFINE / 2))
+    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+    disk = xx**2 + yy**2 <= r * r
+    pad = r + 1
+    closed = ndimage.binary_closing(np.pad(has, pad), disk)[pad:-pad, pad:-pad]
+    gaps = closed & ~has
+    if not gaps.any():
+        return 0
+    _, (ii, jj) = ndimage.distance_transform_edt(~has, return_indices=True)
+    height = top[ii, jj]  # the nearest supported column's top
+    for k in range(k0, k1):
+        occ[:, :, k] |= gaps & (k <= height)
+    return int(gaps.sum())
 
 
 def support_note(
