@@ -14,13 +14,15 @@ Three pieces, used by :mod:`motionphysics.scene.prepare`:
   behind its surface (as it does for collider planes). :func:`support_note` says in
   one line when the static scene under the simulated splats is too sparse to hold them.
 
-Resolution (what a person should know): the collider's surface is the boundary of the
-occupied cells of side ``h = dx / 2``; a splat marks the cells its one-sigma box
-reaches (``prepare.voxelise``), so the surface lies between the highest splat centre and
-``h + sigma`` above it, and a gap narrower than ``h`` between static splats is not seen
-as a gap (a wider one is a hole material can fall through). Features thinner than a cell
-still stop material (the particle projection acts at any depth), but their normal is
-only as good as a finite difference at ``h``. Nothing here simulates or renders.
+Resolution (what a person should know; docs/capture.md): the level set's cells are
+``h = dx / LEVELSET_REFINE``; a splat marks the cells its one-sigma box reaches, sigma
+capped at one cell (``prepare.voxelise``), so the surface lies between the highest splat
+centre and ``2 h`` above it. Gaps up to ``CLOSE_GAP`` dx across z between static cells
+are closed, and near the simulated splats' lowest point the support under them (which
+no view of a capture sees) is filled and its gaps up to ``SUPPORT_GAP`` dx are closed;
+wider holes stay holes material can fall through. Features thinner than a cell still
+stop material (the particle projection acts at any depth), but their normal is only as
+good as a finite difference at ``h``. Nothing here simulates or renders.
 """
 
 from __future__ import annotations
