@@ -248,8 +248,8 @@ def test_gradient_through_the_static_collider_matches_finite_differences(tmp_pat
 def test_objects_cut_from_one_capture_share_its_static_scene(tmp_path):
     """Two objects: entries with a region each; the static scene is the capture outside
     both regions, drawn once."""
-    from motionphysics.scene.prepare import prepare_objects
     from motionphysics.scene.ply import write_ply
+    from motionphysics.scene.prepare import prepare_objects
 
     a, _ = transform_scene(load_scene("builtin:sphere"), 0.1, [], (-0.15, 0.0, 0.105))
     b, _ = transform_scene(load_scene("builtin:sphere"), 0.1, [], (0.15, 0.0, 0.105))
