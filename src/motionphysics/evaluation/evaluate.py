@@ -262,8 +262,17 @@ def summary_lines(m: dict[str, Any]) -> list[str]:
         )
     ma = m.get("motion_adherence") or {}
     lines.append(f"adherence  {_f(ma.get('score'), '.3f')}   prompt: {ma.get('prompt')!r}")
+    if ma.get("score_mean") is not None:
+        # the score changed meaning with issue 27; say so where it is read
+        lines.append(
+            "  (what a viewer sees: peak squash, pace after contact, swing trains; the claims "
+            f"combine by a harmonic mean, their plain mean is {ma['score_mean']:.3f})"
+        )
     for b in ma.get("behaviours", []):
         if b.get("source", "prompt") != "prompt":
+            continue
+        if b.get("explain"):
+            lines.append(f"  {b['name']:<14} {b['explain']}")
             continue
         lines.append(
             f"  {b['name']:<14} expected {b['expected']:<4} measured {b['measured']:.3g} "

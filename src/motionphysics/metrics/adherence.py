@@ -198,27 +198,39 @@ BEHAVIOURS: dict[str, Behaviour] = {
         ),
         Behaviour(
             "deform_any",
-            "max_shape_change",
-            0.06,
-            0.02,
-            "largest shape change over the clip (RMS Procrustes residual / L)",
+            "max_tip_change",
+            0.05,
+            0.015,
+            "largest shape change over the clip at its largest place (99th percentile of the"
+            " particles' distance from the best rigid motion / L): a bar bent at one end"
+            " changed its shape although most of it did not",
+        ),
+        Behaviour(
+            "large_shape",
+            "max_tip_change",
+            0.04,
+            0.012,
+            "largest shape change at its largest place over the clip: 99th percentile of the"
+            " particles' distance from the best rigid motion, in L (LOW: a gentle, small"
+            " motion; a rod that droops to the floor moves its tip over 10 % of L)",
         ),
         Behaviour(
             "oscillate",
             "osc_swings",
             2.5,
             0.75,
-            "swings of the shape (Procrustes residual or squash, both rotation-free) in one"
-            " decaying"
-            " train: each over 1 % of L, over 15 % of the largest swing and over 30 % of the"
-            " swing before it, so one droop or one squash followed by small wiggles is not"
-            " an oscillation (3 swings: one and a half periods)",
+            "swings of the shape (RMS or 99th-percentile Procrustes residual, or the strain"
+            " along the rest axis that changes most, or the angle between a slender body's end"
+            " slabs in units of 100 deg with swings over 2 deg: all"
+            " rotation-free) in one decaying train from its first swing on: each over 1 % of"
+            " L and over half the swing before it, so one droop or one squash followed by"
+            " small wiggles is not an oscillation (3 swings: one and a half periods)",
         ),
         Behaviour(
             "fast",
             "pace",
-            0.25,
-            0.08,
+            0.2,
+            0.06,
             "mean particle speed after the first contact with the floor (the whole clip"
             " without one) / sqrt(g L): the pace of the motion the prompt describes, not of"
             " the fall before it (LOW: oozing, creeping, gentle)",
@@ -311,10 +323,21 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
     ),
     (
         "wobble",
-        r"wobbl\w*|jiggl\w*|wiggl\w*|vibrat\w*|oscillat\w*|quiver\w*|jelly-like|sway\w*|shak\w*"
-        r"|springy|bobs?|bobbing|trembl\w*|shiver\w*|judder\w*|jitter\w*",
+        r"wobbl\w*|jiggl\w*|wiggl\w*|oscillat\w*|jelly-like|sway\w*|shak\w*|springy|bobs?"
+        r"|bobbing|quiver\w*|trembl\w*|shiver\w*",
         # a wobbling body's landing hop is part of its wobble: no unasked-bounce hint
         [("oscillate", _H, 1.0), ("deform", _L, 0.5), ("bounce_seen", _ANY, 0.0)],
+    ),
+    (
+        "vibrate",
+        r"vibrat\w*|judder\w*|jitter\w*|hum\b|humming|buzz\w*",
+        # a vibration is a SMALL oscillation about the shape (not a droop and a flop)
+        [
+            ("oscillate", _H, 1.0),
+            ("deform", _L, 0.5),
+            ("large_shape", _L, 0.5),
+            ("bounce_seen", _ANY, 0.0),
+        ],
     ),
     (
         "squash",
@@ -334,7 +357,7 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
         r"|keeps? the dent|holds? (?:its|their|the) new shape|remains? (?:bent|flat|deformed|dented)"
         r"|plastically|does ?n[o']t (?:spring|bounce|recover) back|never recovers"
         r"|does ?n[o']t recover",
-        [("recovery", _L, 1.0), ("deform", _H, 0.5), ("creeping", _L, 0.5), ("intact", _H, 0.5)],
+        [("recovery", _L, 1.0), ("creeping", _L, 0.5), ("intact", _H, 0.5)],
     ),
     (
         "recover",
@@ -377,12 +400,18 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
         "ooze",
         r"ooz\w*|creep\w*|seep\w*|drip\w*|trickl\w*",
         # an ooze is one mass creeping, not grains trickling apart
-        [("fast", _L, 1.0), ("creeping", _H, 0.5), ("intact", _H, 0.5)],
+        [("fast", _L, 1.0), ("creeping", _H, 0.5), ("intact", _H, 0.5), ("spread", _H, 0.5)],
     ),
     (
         "slow",
-        r"slow\w*|gradual\w*|gentl\w*|sluggish\w*|viscous\w*|thick\w*|languid\w*|lazil\w*",
+        r"slow\w*|gradual\w*|sluggish\w*|viscous\w*|thick\w*|languid\w*|lazil\w*",
         [("fast", _L, 1.0)],
+    ),
+    (
+        "gentle",
+        r"gentl\w*|softly|lightly|subtl\w*|faint\w*|slight\w*",
+        # gentle: slow AND small
+        [("fast", _L, 1.0), ("large_shape", _L, 0.5)],
     ),
     (
         "fast",
@@ -391,7 +420,8 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
     ),
     (
         "fall",
-        r"fall\w*|fell\b|drop\w*|dropped|tumbl\w*|plummet\w*|plung\w*|descend\w*|lands? on"
+        r"fall(?!\w* (?:apart|to pieces))\w*|fell\b|drop\w*|dropped|tumbl\w*|plummet\w*|plung\w*"
+        r"|descend\w*|lands?\b|landing"
         r"|hits? the (?:ground|floor|table|surface)|thrown down",
         [("fall", _H, 1.0)],
     ),
@@ -549,8 +579,12 @@ def floor_height(x: np.ndarray, up: np.ndarray) -> float:
     return float(np.percentile(h, 0.1, axis=1).min())
 
 
-def _kabsch(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
-    """Best rotation R mapping centred p onto centred q (weights w); returns (R, rms residual)."""
+def _kabsch(
+    p: np.ndarray, q: np.ndarray, w: np.ndarray, *, tip: bool = False
+) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, float]:
+    """Best rotation R mapping centred p onto centred q (weights w); returns (R, rms
+    residual), and with ``tip`` also the 99th percentile of the particle residuals (the
+    free end of a bending rod, where the RMS is dominated by its clamped part)."""
     pc = p - (w[:, None] * p).sum(0) / w.sum()
     qc = q - (w[:, None] * q).sum(0) / w.sum()
     H = (w[:, None] * pc).T @ qc
@@ -558,7 +592,11 @@ def _kabsch(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, fl
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
     r = qc - pc @ R.T
-    return R, float(np.sqrt((w * (r * r).sum(1)).sum() / w.sum()))
+    rr = (r * r).sum(1)
+    rms = float(np.sqrt((w * rr).sum() / w.sum()))
+    if tip:
+        return R, rms, float(np.sqrt(np.percentile(rr, 99)))
+    return R, rms
 
 
 def _reversals(signal: np.ndarray, hysteresis: float) -> int:
@@ -594,34 +632,31 @@ def _extrema(signal: np.ndarray, hysteresis: float) -> list[tuple[int, float]]:
     return pts
 
 
+DECAY = 0.5
+"""Each swing of an oscillation is at least this fraction of the swing before it (a
+damping ratio up to about 0.2 between half-periods)."""
+
+
 def _swing_train(signal: np.ndarray, t: np.ndarray, floor: float) -> dict[str, float]:
-    """The longest train of swings of ``signal`` that is an oscillation (see
-    ``BEHAVIOURS["oscillate"]``) -> {swings, amplitude (half the mean swing), frequency_hz}."""
+    """The oscillation of ``signal`` (see ``BEHAVIOURS["oscillate"]``): the train of swings
+    from its FIRST swing over ``floor`` on, each at least :data:`DECAY` of the one before
+    -> {swings, amplitude (half the mean swing), frequency_hz}. A rod that droops to the
+    floor and wiggles there makes one big swing and then small ones: a train of one."""
     pts = _extrema(signal, floor)
     sw = [abs(pts[k][1] - pts[k - 1][1]) for k in range(1, len(pts))]
-    best = {"swings": 0.0, "amplitude": 0.0, "frequency_hz": 0.0}
-    if not sw:
-        return best
-    big = max(sw)
-    ok = [s >= max(floor, 0.15 * big) for s in sw]
-    k = 0
-    while k < len(sw):
-        if not ok[k]:
-            k += 1
-            continue
-        j = k + 1
-        while j < len(sw) and ok[j] and sw[j] >= 0.3 * sw[j - 1]:
-            j += 1
-        n = j - k
-        if n > best["swings"]:
-            span = float(t[pts[j][0]] - t[pts[k][0]])
-            best = {
-                "swings": float(n),
-                "amplitude": 0.5 * float(np.mean(sw[k:j])),
-                "frequency_hz": (0.5 * n / span) if span > 0 and n >= 2 else 0.0,
-            }
-        k = j
-    return best
+    k = next((i for i, s in enumerate(sw) if s >= floor), None)
+    if k is None:
+        return {"swings": 0.0, "amplitude": 0.0, "frequency_hz": 0.0}
+    j = k + 1
+    while j < len(sw) and sw[j] >= max(floor, DECAY * sw[j - 1]):
+        j += 1
+    n = j - k
+    span = float(t[pts[j][0]] - t[pts[k][0]])
+    return {
+        "swings": float(n),
+        "amplitude": 0.5 * float(np.mean(sw[k:j])),
+        "frequency_hz": (0.5 * n / span) if span > 0 and n >= 2 else 0.0,
+    }
 
 
 def _pieces(p: np.ndarray, w: np.ndarray, radius: float) -> float:
@@ -690,8 +725,8 @@ def measure(
         d = horiz(i)
         return float(np.sqrt((m * (d * d).sum(1)).sum() / m.sum()))
 
-    # lowest point above the floor per frame; a contact is within 3 % of L of it
-    low = np.percentile(h, 0.5, axis=1) - floor
+    # lowest particle above the floor per frame; a contact is within 3 % of L of it
+    low = h.min(axis=1) - floor
     touching = np.nonzero(low < 0.03 * L)[0]
     # rebound: best rise after a low point AT GROUND LEVEL (within 0.1 L of the lowest
     # centroid height; frames are too coarse to catch the contact itself) over the fall
@@ -712,15 +747,17 @@ def measure(
     # pose's axes (1st-99th percentile), so a tumbling body is not read as squashed
     c0 = x[0] - (m[:, None] * x[0]).sum(0) / m.sum()
     ext_rest = np.maximum(np.percentile(c0, 99, axis=0) - np.percentile(c0, 1, axis=0), 1e-3 * L)
-    residuals, squash, rot = [], [], 0.0
+    residuals, tips, squash, strain, rot = [], [], [], [], 0.0
     for i in range(T):
-        R, res = _kabsch(x[0], x[i], m)
+        R, res, tip = _kabsch(x[0], x[i], m, tip=True)
         residuals.append(res / L)
+        tips.append(tip / L)
         back = (x[i] - com[i]) @ R  # rotated back into the rest pose's frame
         ext_i = np.percentile(back, 99, axis=0) - np.percentile(back, 1, axis=0)
         # axes thinner than a fifth of L (a rod's cross-section) are not judged
         judged = ext_rest >= 0.2 * L
         squash.append(float(np.max(np.where(judged, 1.0 - ext_i / ext_rest, -1.0))))
+        strain.append(np.where(judged, ext_i / ext_rest - 1.0, 0.0))
         if i == T - 1:
             rot = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0))))
     squash_arr = np.clip(np.array(squash), 0.0, 1.0)
@@ -743,6 +780,19 @@ def measure(
         for j in range(i + 1, len(rots)):
             c = (np.trace(rots[i].T @ rots[j]) - 1.0) / 2.0
             bend = max(bend, math.degrees(math.acos(max(-1.0, min(1.0, c)))))
+    # an elongated body (longest rest extent over twice the next) also swings as the
+    # angle between its end slabs per frame: a rod's bending is mostly a rotation of its
+    # parts, which the residuals above do not see
+    sv = np.linalg.svd(p0 * np.sqrt(m / m.sum())[:, None], compute_uv=False)
+    ends = np.array_split(order, 6)
+    end_angle = None
+    if sv[0] > 2.0 * sv[1] and ends[0].size >= 4 and ends[-1].size >= 4:
+        end_angle = []
+        for i in range(T):
+            ra = _kabsch(x[0][ends[0]], x[i][ends[0]], m[ends[0]])[0]
+            rb = _kabsch(x[0][ends[-1]], x[i][ends[-1]], m[ends[-1]])[0]
+            c = (np.trace(ra.T @ rb) - 1.0) / 2.0
+            end_angle.append(math.degrees(math.acos(max(-1.0, min(1.0, c)))))
     max_change = float(max(residuals))
     recovery = (max_change - float(residuals[-1])) / max(max_change, 0.02)
     if "v" in traj:
@@ -766,8 +816,16 @@ def measure(
     extents = np.array([vert_extent(i) for i in range(T)])
     # rotation-invariant shape signals only: a tumbling body changes its vertical
     # extent without oscillating
-    trains = [_swing_train(np.array(residuals), t, 0.01), _swing_train(squash_arr, t, 0.01)]
-    osc = max(trains, key=lambda d: (d["swings"], d["amplitude"]))
+    # the signed strain along the rest axis that changes most: a squash-and-stretch
+    # wobble swings both ways about the rest shape (the squash above is one-sided)
+    strain_arr = np.array(strain)  # [T, 3]
+    along = strain_arr[:, int(np.argmax(strain_arr.std(0)))]
+    trains = [_swing_train(np.array(signal), t, 0.01) for signal in (residuals, tips, along)]
+    if end_angle is not None:  # in units of 100 deg, swings over 2 deg
+        trains.append(_swing_train(np.array(end_angle) / 100.0, t, 0.02))
+    names = ["shape", "shape", "strain", "end angle"][: len(trains)]
+    best = max(range(len(trains)), key=lambda k: (trains[k]["swings"], trains[k]["amplitude"]))
+    osc = trains[best]
     # in one piece: links shorter than 2.5x the rest spacing, at the last frame
     from scipy.spatial import cKDTree
 
@@ -802,12 +860,14 @@ def measure(
         "squash_recovery_s": squash_recovery_s,
         "shape_change": float(residuals[-1]),
         "max_shape_change": max_change,
+        "max_tip_change": float(max(tips)),
         "bend_deg": float(bend),
         "recovery": float(recovery),
         "reversals": float(_reversals(extents, 0.01 * L)),
         "osc_swings": osc["swings"],
         "osc_amplitude": osc["amplitude"],
         "osc_frequency_hz": osc["frequency_hz"],
+        "osc_signal": names[best],
         "speed": float(speed.mean()),
         "pace": pace,
         "contact_time_s": None if contact is None else float(t[contact] - t[0]),
@@ -846,10 +906,18 @@ _SAY: dict[str, Callable[[dict[str, Any]], str]] = {
     ),
     "shape_change": lambda m: f"final shape change {_pct(m['shape_change'])} of L",
     "max_shape_change": lambda m: f"largest shape change {_pct(m['max_shape_change'])} of L",
+    "max_tip_change": lambda m: (
+        f"its most moved part left its shape by {_pct(m['max_tip_change'])} of L"
+    ),
     "bend_deg": lambda m: f"bent {m['bend_deg']:.0f} deg",
     "recovery": lambda m: f"{_pct(max(0.0, m['recovery']))} of the shape change undone",
     "osc_swings": lambda m: (
-        f"{m['osc_swings']:.0f} swings of {_pct(m['osc_amplitude'])} of L"
+        f"{m['osc_swings']:.0f} swings"
+        + (
+            f" of its end angle, {100 * m['osc_amplitude']:.0f} deg"
+            if m.get("osc_signal") == "end angle"
+            else f" of {_pct(m['osc_amplitude'])} of L"
+        )
         + (f" at {m['osc_frequency_hz']:.2g} Hz" if m["osc_frequency_hz"] > 0 else "")
     ),
     "pace": lambda m: f"pace after contact {m['pace']:.2g} sqrt(gL)",
