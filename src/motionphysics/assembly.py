@@ -1230,10 +1230,9 @@ class Assembly:
             raise RuntimeError("assemble(..., needs_grad=True) is required for a simulator")
         if self.objects is not None:
             if not per_object:
-                raise UserInputError(
-                    "objects: optimising the materials of several objects (run's refinement, "
-                    "fit) is not available yet; simulate them with --prior none or fit one "
-                    "object at a time"
+                raise ValueError(
+                    "an assembly of several objects has one parameter vector per object: "
+                    "simulator(per_object=True) (optimize.objects builds its problem)"
                 )
             return ObjectsSimulator(self, int(num_frames or self.cfg.sim.frames))
         return BridgeSimulator(
@@ -1654,10 +1653,39 @@ class ObjectsSimulator:
         self.num_particles = int(self.simulation.model.particle_count)
         self.num_frames = int(num_frames)
         self.object_id = _np(assembly.sim_scene.object_id).astype(np.int64)
+        self.changes: list[tuple[int, int]] = []
+        """(old, new) substep counts, in order, each time the count was re-resolved."""
 
     @property
     def substeps(self) -> int:
         return int(self.simulation.substeps)
+
+    def _retime(self, per_object_sim) -> None:
+        """Under ``substeps: auto``: the count for the current values (the stiffest
+        object's CFL limit, :func:`resolve_substeps` as the forward commands resolve
+        it); the rollout is rebuilt when it changes (as :class:`BridgeSimulator`)."""
+        cfg = self.assembly.cfg
+        if cfg.sim.substeps != "auto":
+            return
+        import torch
+
+        floats = [
+            {k: float(torch.as_tensor(v).detach().double()) for k, v in d.items()}
+            for d in per_object_sim
+        ]
+        values = _per_particle_union(floats, self.object_id)
+        ids = self.assembly.material.class_ids
+        n = resolve_substeps(cfg, ids, values, float(self.simulation.model.dx))
+        old = int(self.simulation.substeps)
+        if n != old:
+            self.simulation.substeps = n
+            self.simulation._rollout = None
+            self.changes.append((old, n))
+            self.assembly.observer.message(
+                "info",
+                f"substeps re-resolved for the current parameters: {old} -> {n} per frame "
+                "(sim.substeps: auto, CFL limit)",
+            )
 
     def simulate(self, per_object_sim, initial_velocity, frames, grad_mode="full", window=8):
         import torch
@@ -1669,6 +1697,7 @@ class ObjectsSimulator:
             raise ValueError(
                 f"{len(per_object_sim)} parameter sets for {len(self.assembly.objects)} objects"
             )
+        self._retime(per_object_sim)
         params = {
             k: v
             for k, v in _per_particle_union(list(per_object_sim), self.object_id).items()

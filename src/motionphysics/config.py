@@ -503,8 +503,11 @@ class OptimizeConfig(_Strict):
     """Per-parameter learning rates, by parameter name."""
     warmup: int = Field(2, ge=0)
     """Warm-up iterations of the cosine schedule."""
-    params: list[str] | None = None
-    """Parameters to optimise (default: all of the class's parameters, density excluded)."""
+    params: list[str] | dict[str, list[str]] | None = None
+    """Parameters to optimise (default: all of the class's parameters, density excluded).
+    Several objects (``objects:``): a list applies to every object; a mapping by object
+    name (``{duck: [E], block: [E, nu]}``) gives each object its own list, and an object
+    it leaves out keeps its material as given."""
     tolerance: float = Field(1e-4, ge=0)
     """Stop early when the relative change of theta stays below this for 3 iterations."""
     per_particle: list[str] = []
@@ -576,6 +579,40 @@ class ObjectConfig(SceneConfig):
     """Given fields override the estimate for this object."""
     initial_velocity: Vec3 | None = None
     """Initial velocity of this object's particles [m/s] (absent: ``sim.initial_velocity``)."""
+    prompt: str | None = Field(None, min_length=1)
+    """This object's phrase for a prior that observes each object (``--prior motion``):
+    what its motion should look like ("the jelly cube wobbles"). Absent: the clause of
+    the run's ``prompt`` that names the object (:func:`motionphysics.optimize.objects.object_prompt`)."""
+
+
+def _check_objects_optimize(opt: OptimizeConfig, objects, several: bool) -> None:
+    """The ``optimize`` keys that depend on how many objects there are."""
+    if isinstance(opt.params, dict):
+        if not several:
+            raise ValueError(
+                "optimize.params: a mapping by object name needs objects: (or scene.split); "
+                "give a list of parameter names"
+            )
+        if not opt.params:
+            raise ValueError("optimize.params: empty mapping; name at least one object")
+        if objects is not None:
+            names = [o.name for o in objects]
+            unknown = [k for k in opt.params if k not in names]
+            if unknown:
+                raise ValueError(
+                    f"optimize.params: {', '.join(unknown)} not an object of this scene; "
+                    f"expected names among {', '.join(names)}"
+                )
+    if several and opt.per_particle:
+        raise ValueError(
+            "optimize.per_particle: per-particle fields are for one object; with several "
+            "objects each object's parameters are optimised as one value each"
+        )
+    if several and opt.initial_velocity:
+        raise ValueError(
+            "optimize.initial_velocity: with several objects each keeps its own initial "
+            "velocity (objects[i].initial_velocity); it is not optimised"
+        )
 
 
 class RunConfig(_Strict):
@@ -608,13 +645,7 @@ class RunConfig(_Strict):
     @model_validator(mode="after")
     def _objects_or_scene(self):
         several = self.objects is not None or self.scene.split is not None
-        if several and (self.optimize.prior != "none" or self.optimize.losses):
-            # (the differentiable simulator of several objects exists:
-            # assembly.ObjectsSimulator; the refinement loop is not wired to it yet)
-            raise ValueError(
-                "optimize.prior: refining the materials of several objects (objects: or "
-                "scene.split) is not available yet; use prior: none"
-            )
+        _check_objects_optimize(self.optimize, self.objects, several)
         if self.objects is None:
             if self.scene.part is not None:
                 raise ValueError("scene.part: only inside an objects: entry (with split)")

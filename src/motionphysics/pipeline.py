@@ -166,11 +166,16 @@ def run_pipeline(
         initial_material = None
         if refine and cfg.optimize.iterations > 0:
             initial_material = material
-            writer.state["initial"] = {
-                "params": {k: float(v) for k, v in material.values.items()},
-                "sim": dict(res.values),
-                "substeps": int(res.substeps),
-            }
+            if parts.objects is not None:  # each object's start (optimize.objects)
+                from motionphysics.optimize.objects import initial_record
+
+                writer.state["initial"] = initial_record(material, res)
+            else:
+                writer.state["initial"] = {
+                    "params": {k: float(v) for k, v in material.values.items()},
+                    "sim": dict(res.values),
+                    "substeps": int(res.substeps),
+                }
             with writer.stage("optimise", total=cfg.optimize.iterations) as st:
                 opt = _optimise(parts, writer, resume, st)
                 material = opt["material"]

@@ -157,9 +157,13 @@ def test_objects_config_errors():
     assert obj.scale == 0.5 and obj.material.class_ == "foam" and obj.initial_velocity is None
 
 
-def test_refinement_of_several_objects_refused_at_config_time():
-    with pytest.raises(UserInputError, match="several objects"):
-        config_from_dict({"objects": [{"name": "a"}], "optimize": {"prior": "tiny"}})
+def test_refinement_of_several_objects_accepted_at_config_time():
+    # (issue 25: run with a prior and fit optimise every object; tests/optimize/
+    # test_objects_optimize.py and tests/test_cli_objects_*.py run them)
+    cfg = config_from_dict({"objects": [{"name": "a"}], "optimize": {"prior": "tiny"}})
+    assert cfg.optimize.prior == "tiny"
+    with pytest.raises(UserInputError, match=r"optimize\.params: b not an object"):
+        config_from_dict({"objects": [{"name": "a"}], "optimize": {"params": {"b": ["E"]}}})
 
 
 def test_example_config_with_two_objects_of_different_classes():

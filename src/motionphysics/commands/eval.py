@@ -27,11 +27,13 @@ def _main(args) -> int:
         flow=args.flow,
         ecms_config=ecfg,
         device=args.device,
+        object_name=args.object,
     )
     if not args.quiet:
         from pathlib import Path
 
-        print(f"metrics:   {Path(args.run_dir) / 'metrics.json'}")
+        name = "metrics.json" if args.object is None else f"metrics_{args.object}.json"
+        print(f"metrics:   {Path(args.run_dir) / name}")
         print(f"frames {m['frames']}, particles {m['particles']}, duration {m['duration_s']:.3g} s")
         for line in summary_lines(m):
             print(line)
@@ -84,5 +86,12 @@ def register(subparsers) -> None:
         help="added to the motion sum (finite for a still video)",
     )
     p.add_argument("--device", default="cpu", help="torch device for CLIP / ViCLIP / RAFT")
+    p.add_argument(
+        "--object",
+        default=None,
+        metavar="NAME",
+        help="a run of several objects: this object's metrics (its particles, its phrase of "
+        "the prompt) to metrics_NAME.json",
+    )
     add_display_options(p)
     p.set_defaults(func=_main)

@@ -40,6 +40,7 @@ def _main(args) -> int:
             port=args.port,
             frame=args.frame,
             max_splats=args.max_splats,
+            object_name=args.object,
         )
         viewer.wait()
     except KeyboardInterrupt:
@@ -74,5 +75,11 @@ def register(subparsers) -> None:
         default=DEFAULT_MAX_SPLATS,
         metavar="N",
         help="show at most N splats per frame (a fixed random subset of larger runs)",
+    )
+    p.add_argument(
+        "--object",
+        default=None,
+        metavar="NAME",
+        help="a run of several objects: show only this object (its name in objects:)",
     )
     p.set_defaults(func=_main)

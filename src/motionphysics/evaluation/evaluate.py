@@ -129,8 +129,16 @@ def evaluate_run(
     ecms_config=None,
     device: str = "cpu",
     write: bool = True,
+    object_name: str | None = None,
 ) -> dict[str, Any]:
-    """Every metric of one run; writes ``metrics.json`` there when ``write``."""
+    """Every metric of one run; writes ``metrics.json`` there when ``write``.
+
+    ``object_name`` (``eval --object NAME``, a run of several objects): the metrics of
+    that object's particles, its motion adherence scored against its own phrase
+    (``objects[i].prompt``, else the clause of the prompt that names it,
+    :func:`motionphysics.optimize.objects.object_prompt`), written to
+    ``metrics_NAME.json``; the video metrics (ECMS, CLIPSIM, OC) score the whole
+    picture, so they are left null with that reason."""
     from motionphysics.metrics.adherence import motion_adherence
     from motionphysics.metrics.ecms import ECMSConfig, ecms_video
     from motionphysics.metrics.flow import FLOW_METHODS
@@ -165,6 +173,10 @@ def evaluate_run(
     else:
         prompt_text, prompt_source = None, None
 
+    if object_name is not None:
+        traj, params, prompt_text, prompt_source = _one_object(
+            run, object_name, prompt_text, prompt_source, prompt is not None
+        )
     up = up_axis(traj.get("gravity"))
     floor = floor_from_config(cfg, up, traj["x"][0])
     out: dict[str, Any] = {"schema": SCHEMA}
@@ -172,7 +184,9 @@ def evaluate_run(
     out["prompt"] = prompt_text
     out["prompt_source"] = prompt_source
 
-    frames = _video_frames(run["video_path"])
+    if object_name is not None:
+        out["object"] = object_name
+    frames = _video_frames(run["video_path"]) if object_name is None else None
     # ---- ECMS
     ecfg = ecms_config or ECMSConfig()
     if frames is None:
@@ -214,6 +228,9 @@ def evaluate_run(
         o = overall_consistency(frames, prompt_text, viclip, bpe_path=viclip_bpe, device=device)
         out["oc"] = o["oc"]
         out["oc_details"] = {k: v for k, v in o.items() if k != "oc"}
+    if object_name is not None:
+        why = f"--object {object_name}: the video shows every object; eval without --object"
+        out.update(ecms_reason=why, clipsim_reason=why, oc_reason=why)
     # ---- motion adherence
     if prompt_text is None:
         out["motion_adherence"] = {
@@ -231,11 +248,42 @@ def evaluate_run(
     if write:
         from motionphysics.io.rundir import to_json_text
 
-        target = run["path"] / "metrics.json"
+        name = "metrics.json" if object_name is None else f"metrics_{object_name}.json"
+        target = run["path"] / name
         tmp = target.with_name(f".metrics.json.tmp-{id(out)}")
         tmp.write_text(to_json_text(out))
         tmp.replace(target)
     return out
+
+
+def _one_object(run, name: str, prompt_text, prompt_source, given: bool):
+    """(trajectory, params, prompt, prompt source) of object ``name`` of a run of
+    several objects (``eval --object``); a one-line error when it has no such object."""
+    from motionphysics.metrics.physical import object_slices
+
+    traj, params, cfg = run["traj"], run["params"], run["config"]
+    if "object_id" not in traj:
+        raise UserInputError(f"--object {name}: {run['path']} holds one object")
+    slices = dict(object_slices(traj))
+    if name not in slices:
+        raise UserInputError(
+            f"--object {name}: not an object of {run['path']}; expected one of "
+            f"{', '.join(slices)}"
+        )
+    objs = [o for o in params.get("objects") or [] if o.get("name") == name]
+    one = {**params, "class": objs[0].get("class") if objs else None}
+    one["sim"] = objs[0].get("sim") if objs else None
+    if not given and prompt_text is not None:
+        from motionphysics.optimize.objects import object_prompt
+
+        entries = [o for o in cfg.get("objects") or [] if isinstance(o, dict)]
+        own = [o.get("prompt") for o in entries if o.get("name") == name and o.get("prompt")]
+        names = tuple(str(o.get("name")) for o in entries)
+        phrase = own[0] if own else object_prompt(prompt_text, name, names)
+        if phrase is not None:
+            prompt_source = f"objects[{name}].prompt" if own else f"{prompt_source} (its clause)"
+            prompt_text = phrase
+    return slices[name], one, prompt_text, prompt_source
 
 
 def _f(v: Any, spec: str = ".4g") -> str:

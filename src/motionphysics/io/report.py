@@ -371,9 +371,13 @@ def optimisation_section_html(
     """
     run_dir = Path(run_dir)
     e = html.escape
+    from motionphysics.optimize.objects import flat_params
+
     records = list(history if history is not None else params.get("history") or [])
     if not records:
         return ""
+    # several objects: each object's values as OBJECT.PARAM curves
+    records = [{**r, "params": flat_params(r.get("params") or {})} for r in records]
     out = [f"<style>{_SECTION_CSS}</style>", "<h2 id='optimisation'>Optimisation</h2>"]
     opt = params.get("optimise") or {}
     stop = opt.get("stop_reason")
@@ -405,7 +409,7 @@ def optimisation_section_html(
             if k not in names:
                 names.append(k)
     for k in names:
-        unit = UNITS.get(k, "")
+        unit = UNITS.get(k.rpartition(".")[2], "")
         title = f"{k} [{unit}]" if unit and unit != "–" else k
         ys = [(r.get("params") or {}).get(k) for r in records]
         curves.append(svg_curve(its, ys, title, band=(ranges or {}).get(k)))

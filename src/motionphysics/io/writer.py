@@ -811,10 +811,12 @@ def _object_row_col(frame0: np.ndarray, background) -> tuple[int, int]:
 
 def _plot_records(history: list[dict]) -> list[dict]:
     """History records with per-particle values reduced to their mean (for the plots)."""
+    from motionphysics.optimize.objects import flat_params
+
     out = []
     for r in history:
         params = {}
-        for n, v in (r.get("params") or {}).items():
+        for n, v in flat_params(r.get("params") or {}).items():
             if isinstance(v, dict):
                 v = v.get("mean")
             if isinstance(v, (int, float)):
@@ -829,11 +831,14 @@ def _ranges(state: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
 
     opt = state.get("fit") or state.get("optimise") or {}
     names = opt.get("optimised") or list(state.get("params") or {})
+    # several objects: OBJECT.PARAM names, each of its object's class
+    classes = {o["name"]: o["class"] for o in state.get("objects") or []}
     out = {}
     for n in names:
-        if n == "density" or n == "initial_velocity":
+        obj, _, own = n.rpartition(".") if classes else ("", "", n)
+        if own == "density" or own == "initial_velocity":
             continue
-        s = spec(state["class"], n)
+        s = spec(classes[obj] if classes else state["class"], own)
         out[n] = (float(s.low), float(s.high))
     return out
 

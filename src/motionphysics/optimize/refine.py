@@ -288,10 +288,11 @@ def _quiet_hub_progress() -> None:
             pass
 
 
-def scene_context(parts):
+def scene_context(parts, index=None):
     """The :class:`~motionphysics.priors.base.SceneContext` of an assembly: the rest
     positions of its particles, the ground under them, the gravity and the frame time
-    (what a prior that observes states measures the motion against)."""
+    (what a prior that observes states measures the motion against). ``index`` [P_k]
+    (long): one object's particles only (its rest state, the ground under it)."""
     import numpy as np
     import torch
 
@@ -300,6 +301,8 @@ def scene_context(parts):
 
     cfg = parts.cfg
     rest = torch.as_tensor(np.asarray(parts.sim_scene.particles), dtype=torch.float32)
+    if index is not None:
+        rest = rest.index_select(0, index)
     up = _up(cfg)
     centre = rest.double().mean(0).numpy()
     ground = _ground_height(cfg, centre, up)
@@ -350,6 +353,30 @@ def _side_by_side(problem, start, final) -> dict[str, dict[str, Any]]:
     return out
 
 
+def _per_object_losses(parts, prior, bctx):
+    """Several objects and a prior that observes states: the configured losses built
+    once per object, each with its phrase (:func:`~.objects.object_prompts`) and a view
+    of the prior that knows that object's rest state, summed by
+    :class:`~.objects.PerObjectLoss`. Returns (the loss, ``{object: phrase}``)."""
+    from dataclasses import replace
+
+    from motionphysics.optimize.objects import (
+        PerObjectLoss,
+        object_indices,
+        object_prior,
+        object_prompts,
+    )
+
+    names = [o.name for o in parts.objects]
+    phrases = object_prompts(parts.cfg, names)
+    per = []
+    for name, idx in zip(names, object_indices(parts), strict=True):
+        view = object_prior(prior, phrases[name], scene_context(parts, idx))
+        ctx = replace(bctx, prompt=phrases[name], prior=view, num_particles=int(idx.numel()))
+        per.append((name, idx, build_losses(parts.cfg, ctx)))
+    return PerObjectLoss(per), phrases
+
+
 def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[str, Any]:
     """Optimise theta of ``parts.material`` (an Assembly built with ``needs_grad=True``).
 
@@ -384,12 +411,24 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         width=int(cfg.camera.width),
         num_particles=parts.num_particles,
     )
-    loss = build_losses(cfg, bctx)
-    problem = build_problem(parts, loss)
-    stateful = [lo for _, _, lo in loss.terms]
+    several = parts.objects is not None
+    phrases = None
+    if several and prior is not None and getattr(prior, "observes", "frames") == "states":
+        # each object's own phrase and particles (optimize.objects)
+        loss, phrases = _per_object_losses(parts, prior, bctx)
+        weighted = loss.parts[0][2]
+    else:
+        loss = weighted = build_losses(cfg, bctx)
+    if several:
+        from motionphysics.optimize.objects import build_objects_problem, objects_optimised
+
+        problem = build_objects_problem(parts, loss, objects_optimised(cfg, parts.objects))
+    else:
+        problem = build_problem(parts, loss)
+    stateful = [loss] if phrases is not None else [lo for _, _, lo in loss.terms]
     perturbations = [
         lo.render_perturbation
-        for _, _, lo in loss.terms
+        for _, _, lo in weighted.terms
         if getattr(lo, "render_perturbation", None) is not None
     ]
     perturbed = None
@@ -401,7 +440,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         stateful.append(perturbed)
     guidances = [
         float(getattr(lo, "opts", None).guidance)
-        for _, _, lo in loss.terms
+        for _, _, lo in weighted.terms
         if hasattr(getattr(lo, "opts", None), "guidance")
     ]
     guidance = guidances[0] if guidances else None
@@ -425,16 +464,24 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     writer.add_files("log.jsonl", "checkpoint.pt")
     if (writer.path / "prior_reference.mp4").is_file():
         writer.add_files("prior_reference.mp4")
-    final = final_material(problem, parts.material, result.theta)
+    if several:
+        from motionphysics.optimize.objects import final_scene_material, side_by_side
+
+        final = final_scene_material(problem, parts, result.theta)
+        parameters = side_by_side(problem, parts.material, final)
+    else:
+        final = final_material(problem, parts.material, result.theta)
+        parameters = _side_by_side(problem, parts.material, final)
     return {
         "material": final,
-        "parameters": _side_by_side(problem, parts.material, final),
+        "parameters": parameters,
         "history": result.history,
         "stop_reason": result.stop_reason,
         "message": result.message,
         "iterations_run": result.iterations,
         "loss": loss.label,
-        "losses": [{"type": n, "weight": w} for n, w, _ in loss.terms],
+        "losses": [{"type": n, "weight": w} for n, w, _ in weighted.terms],
+        "object_prompts": phrases,
         "prior": name,
         "prior_path": cfg.optimize.prior_path,
         "guidance": guidance,
@@ -446,16 +493,26 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
                     if hasattr(lo, "negative_prompt")
                     else {}
                 ),
+                **(
+                    {
+                        "negative_prompt_used_per_object": {
+                            obj: getattr(wl.terms[i][2], "negative_prompt", None)
+                            for obj, _, wl in loss.parts
+                        }
+                    }
+                    if phrases is not None
+                    else {}
+                ),
             }
-            for n, _, lo in loss.terms
+            for i, (n, _, lo) in enumerate(weighted.terms)
             if hasattr(getattr(lo, "opts", None), "model_dump")
         },
         "guidance_per_loss": {
             n: float(lo.opts.guidance)
-            for n, _, lo in loss.terms
+            for n, _, lo in weighted.terms
             if hasattr(getattr(lo, "opts", None), "guidance")
         },
-        "perturbation": _states_perturbation(loss, prior)
+        "perturbation": _states_perturbation(weighted, prior)
         or (
             {
                 "centers_std": perturbed.centers * perturbed.length,

@@ -195,11 +195,32 @@ def _rebuild_splats(path: Path, config, parent: np.ndarray, offset: np.ndarray):
     return sim_scene.splats
 
 
-def load_run(path: str | Path, notes: list[str] | None = None) -> RunData:
+def object_index(npz: Path, name: str) -> tuple[np.ndarray, list[str]]:
+    """``(object_id [P] int64, object names)`` of a trajectory of several objects, and
+    the one-line error when ``name`` is not one of them (or the run has one object)."""
+    with np.load(npz, allow_pickle=False) as z:
+        if "object_id" not in z.files:
+            raise UserInputError(
+                f"--object {name}: {npz.parent} holds one object (no objects: in its config)"
+            )
+        oid = np.asarray(z["object_id"]).astype(np.int64).reshape(-1)
+        names = [str(n) for n in z["object_names"]] if "object_names" in z.files else []
+    if name not in names:
+        raise UserInputError(
+            f"--object {name}: not an object of {npz.parent}; expected one of {', '.join(names)}"
+        )
+    return oid, names
+
+
+def load_run(
+    path: str | Path, notes: list[str] | None = None, object_name: str | None = None
+) -> RunData:
     """Open a run directory for viewing; a directory that is not a run is a one-line error.
 
     ``notes`` (when given) receives one line per thing the viewer had to do that a
     person should know (e.g. rest splats rebuilt because scene.ply is missing).
+    ``object_name``: a run of several objects shows only that object's splats (the
+    splats whose particle belongs to it, trajectory.npz ``object_id``).
     """
     from motionphysics.config import load_config
     from motionphysics.scene.ply import read_ply
@@ -269,6 +290,13 @@ def load_run(path: str | Path, notes: list[str] | None = None) -> RunData:
         )
     if N and (parent.min() < 0 or parent.max() >= P):
         raise UserInputError(f"{npz}: splat_parent indexes particles outside 0..{P - 1}")
+    if object_name is not None:
+        import torch
+
+        oid, names = object_index(npz, object_name)
+        keep = np.nonzero(oid[parent] == names.index(object_name))[0]
+        splats = splats.subset(torch.from_numpy(keep))
+        parent, offset = parent[keep], offset[keep]
     params = _read_json(path / "params.json")
     if not isinstance(params, dict):
         raise UserInputError(f"{path / 'params.json'}: expected a JSON object")

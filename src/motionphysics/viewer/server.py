@@ -700,12 +700,14 @@ def start_view(
     frame: int = 0,
     max_splats: int | None = DEFAULT_MAX_SPLATS,
     out=None,
+    object_name: str | None = None,
 ) -> Viewer:
-    """Load the runs, start the viewer, print its URL; returns the running :class:`Viewer`."""
+    """Load the runs, start the viewer, print its URL; returns the running :class:`Viewer`.
+    ``object_name``: show only that object of runs of several objects."""
     from motionphysics.viewer.rundata import load_run
 
     notes: list[str] = []
-    runs = [load_run(p, notes) for p in run_dirs]
+    runs = [load_run(p, notes, object_name) for p in run_dirs]
     for line in notes:
         print(f"motionphysics view: {line}", file=out if out is not None else sys.stdout)
     viewer = Viewer(runs, host=host, port=port, frame=frame, max_splats=max_splats, out=out)
