@@ -20,6 +20,14 @@ loop (:mod:`motionphysics.optimize`) consumes; under ``substeps: auto`` the simu
 re-resolves the substep count from the current parameters before each rollout and
 reports a change through the observer (the rollout's CFL check stays in force).
 
+The phases live in their own modules, each re-exported here (``from
+motionphysics.assembly import resolve_camera`` keeps working): the scene phase of a
+region of a capture (:mod:`motionphysics.assembly_scene`), the material
+(:mod:`motionphysics.assembly_material`), the simulation context and the forward rollout
+(:mod:`motionphysics.assembly_simulation`), and the camera, the ground and the frames
+(:mod:`motionphysics.assembly_camera`). This module keeps the objects of a scene of
+several, the adapters the optimisation loop consumes and :func:`assemble` itself.
+
 This module builds and runs components; it writes no files (the run directory is
 :mod:`motionphysics.io.writer`'s) and must not import ``motionphysics.pipeline``,
 ``motionphysics.commands`` or ``motionphysics.optimize``.
@@ -27,7 +35,6 @@ This module builds and runs components; it writes no files (the run directory is
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -35,14 +42,46 @@ from typing import Any
 
 import numpy as np
 
+from motionphysics.assembly_camera import (  # noqa: F401 - the camera phase, re-exported
+    GROUND_FRICTION,
+    _fit_radius,
+    _ground_height,
+    _lowest,
+    _object_box,
+    _up,
+    default_ground,
+    ground_splats,
+    render_frames,
+    render_view,
+    resolve_camera,
+)
+from motionphysics.assembly_material import (  # noqa: F401 - the material phase, re-exported
+    _provenance,
+    estimate_material,
+    material_complete,
+    resolve_material,
+    warn,
+)
+from motionphysics.assembly_simulation import (  # noqa: F401 - the simulation phase, re-exported
+    SimResolution,
+    _budget,
+    _floats,
+    _material_sim,
+    _pinned,
+    map_context,
+    resolve_simulation,
+    resolve_substeps,
+    scene_scales,
+    sim_values,
+    simulate_forward,
+)
 from motionphysics.config import (
     MaterialConfig,
     ObjectConfig,
     RunConfig,
     SceneConfig,
-    SurfaceCollider,
 )
-from motionphysics.errors import SimulationError, UserInputError
+from motionphysics.errors import UserInputError
 from motionphysics.events import NullObserver, Observer
 
 __all__ = [
@@ -90,401 +129,6 @@ class _NullHandle:
 
     def set_total(self, total: int) -> None:
         pass
-
-
-# --------------------------------------------------------------------------------------
-# material
-# --------------------------------------------------------------------------------------
-def estimate_material(prompt: str, image, backend: str, announce: bool = False) -> dict[str, Any]:
-    """Run an init backend (CONTRACTS.md, "init").
-
-    ``image`` is the reference render, uint8 [H, W, 3]. Returns ``{class, density,
-    params, backend, raw, clamps, estimate}`` (``estimate``: the backend's full record).
-    """
-    from motionphysics.init import EstimateOptions, estimate
-
-    # ``announce``: the kb backend reports its model load on stderr (only on a verbose run).
-    est = estimate(prompt, image=image, backend=backend, options=EstimateOptions(announce=announce))
-    return {
-        "class": est.cls,
-        "density": float(est.density),
-        "params": {k: float(v) for k, v in est.values.items()},
-        "backend": est.backend,
-        "raw": est.raw_answer,
-        "clamps": [c.to_dict() for c in est.clamped],
-        "estimate": est.to_dict(),
-    }
-
-
-def resolve_material(
-    cfg: RunConfig, estimate: dict[str, Any] | None, base: dict[str, Any] | None = None
-) -> dict[str, Any]:
-    """Combine an estimate (or a params file) with the config's ``material:`` block.
-
-    Delegates to :func:`motionphysics.materials.resolve.resolve_material`: precedence per
-    field config ``material:`` > ``base`` (``--params`` file) > ``estimate`` > centre of
-    the class's handbook range; values a person wrote are used as written (one warning
-    line when outside the handbook range), estimates are clamped and tagged. Returns
-    ``{"material", "clamps", "warnings", "range_notes", "sources", "overrides",
-    "class_override"}``.
-    """
-    from motionphysics.materials.resolve import resolve_material as _resolve
-
-    return _resolve(
-        cfg.material.class_,
-        cfg.material.overrides(),
-        estimate=estimate,
-        base=base,
-        config_origin="material",
-    )
-
-
-def warn(text: str, observer: Observer | None = None) -> None:
-    """A warning about the material or the simulation: always on stderr (``--quiet``
-    never hides it), and to the observer for displays that keep a log."""
-    print(text if text.startswith("warning") else f"warning: {text}", file=sys.stderr)
-    if observer is not None:
-        observer.message("warning", text)
-
-
-def _provenance(est: dict[str, Any] | None, res: dict[str, Any], params_file=None) -> dict:
-    """Where a material's fields came from (``params.json`` provenance): the backend,
-    its raw answer and estimate, the substitutions and the per-field sources."""
-    backend = "params file" if params_file is not None else est["backend"] if est else "config"
-    return {
-        "backend": backend,
-        "params_file": params_file.get("origin") if params_file is not None else None,
-        "raw_answer": est.get("raw") if est else None,
-        "estimate": est.get("estimate") if est else None,
-        "clamps": res["clamps"],
-        "estimate_clamps": est.get("clamps", []) if est else [],
-        "overrides": res["overrides"],
-        "class_override": res["class_override"],
-        "sources": res["sources"],
-    }
-
-
-def material_complete(cfg: RunConfig) -> bool:
-    """True when the config's ``material:`` block names a class and all of its parameters."""
-    from motionphysics.materials.catalog import MATERIALS, normalise_class
-
-    m = cfg.material
-    if m.class_ is None or m.density is None:
-        return False
-    given = m.overrides()
-    mc = MATERIALS[normalise_class(m.class_, field="material.class")]
-    return all(p.name in given or getattr(p, "default", None) is not None for p in mc.params)
-
-
-# --------------------------------------------------------------------------------------
-# simulation context: resolved here, once, for every command
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class SimResolution:
-    """The simulation a material gets under a config (what every command simulates)."""
-
-    values: dict[str, float]
-    """Simulation values (``materials.simmap``), density included, python floats."""
-    context: Any
-    """The :class:`~motionphysics.materials.simmap.SimContext` of the map."""
-    substeps: int
-    """Substeps per frame (``sim.substeps``, or the CFL choice under ``auto``)."""
-    frame_dt: float
-    """Seconds between output frames."""
-    grid_dims: tuple[int, int, int]
-    auto: bool
-    """True when ``sim.substeps`` is ``auto`` (an optimiser re-resolves as it moves)."""
-    notes: tuple[str, ...] = ()
-    """Warning lines of the substep plan (the auto cap binding)."""
-
-    @property
-    def dt(self) -> float:
-        """Substep [s]."""
-        return self.frame_dt / self.substeps
-
-    def record(self) -> dict[str, Any]:
-        """The ``sim_context`` block of ``params.json``."""
-        return {
-            "dx": float(self.context.dx),
-            "dt": self.frame_dt / self.substeps,
-            "dt_map": float(self.context.dt),
-            "substeps": int(self.substeps),
-            "substeps_mode": "auto" if self.auto else "fixed",
-            "frame_dt": float(self.frame_dt),
-            "length": float(self.context.length),
-            "grid_dims": [int(v) for v in self.grid_dims],
-            # what the scene shows (materials.simmap, "What can be seen")
-            "speed_met": float(self.context.speed),
-            "thickness": float(self.context.thickness_or_length),
-            "visible_strain": float(self.context.visible_strain),
-            "visible_changes": [str(n) for n in self.notes],
-        }
-
-
-def scene_scales(cfg: RunConfig, sim_scene, closing_speed: float = 0.0) -> dict[str, float]:
-    """What this scene shows of a material (``simmap.SimContext``'s scene fields).
-
-    ``speed_met`` [m/s]: the largest speed the object meets: its fall under gravity onto
-    the support below it (the highest upward-facing ``surface_collider`` under its lowest
-    point, else the domain floor; at most ``g T`` over the run), combined with its initial
-    velocity; imposed velocities (``force_particles_translation``, ``clamp_grid``); the
-    rim speed of imposed rotations; impulses (their velocity change) and constant forces
-    (acceleration x the window, within the run); ``closing_speed`` (several objects: the
-    others' speeds). ``thickness`` [m]: the smallest of the principal extents of the
-    particles and ``sqrt(V / L)`` (volume over length: a rod's diameter, a cube's side).
-    ``duration`` [s]: the simulated time.
-    """
-    pts = np.asarray(_np(sim_scene.particles), dtype=np.float64)
-    T = float(cfg.sim.frames) * float(cfg.sim.frame_dt)
-    grav = np.asarray(cfg.sim.gravity, dtype=np.float64)
-    g = float(np.linalg.norm(grav))
-    speeds = [float(np.linalg.norm(cfg.sim.initial_velocity)) + float(closing_speed)]
-    if g > 0:
-        down = grav / g
-        depth = pts @ down  # larger = lower
-        lowest = float(depth.max())
-        supports = []
-        for bc in cfg.boundary_conditions or []:
-            if getattr(bc, "type", None) != "surface_collider" or bc.mode == "cut":
-                continue
-            n = np.asarray(bc.normal, dtype=np.float64)
-            n = n / max(float(np.linalg.norm(n)), 1e-12)
-            if float(n @ -down) > 0.5:
-                d = float(np.asarray(bc.point, dtype=np.float64) @ down)
-                if d >= lowest - 1e-9:
-                    supports.append(d)
-        wall_lo = getattr(sim_scene, "wall_lo", None)
-        wall_hi = getattr(sim_scene, "wall_hi", None)
-        if wall_lo is not None and wall_hi is not None:
-            lo, hi = _np(wall_lo).astype(np.float64), _np(wall_hi).astype(np.float64)
-            corners = np.array(
-                [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-            )
-            supports.append(float((corners @ down).max()))
-        h = max(0.0, min(supports) - lowest) if supports else 0.0
-        fall = min(np.sqrt(2.0 * g * h), g * T)
-        speeds[0] = float(np.hypot(speeds[0], fall))
-    for item in list(cfg.forces or []) + list(cfg.boundary_conditions or []):
-        kind = getattr(item, "type", None)
-        if kind in ("force_particles_translation", "clamp_grid"):
-            speeds.append(float(np.linalg.norm(item.velocity)))
-        elif kind == "force_particles_rotation":
-            c = np.asarray(item.center, dtype=np.float64)
-            a = np.asarray(item.axis_direction, dtype=np.float64)
-            a = a / max(float(np.linalg.norm(a)), 1e-12)
-            r = pts - c
-            rim = float(np.sqrt(np.max(np.sum(r * r, 1) - (r @ a) ** 2, initial=0.0)))
-            speeds.append(abs(float(item.angular_velocity)) * rim)
-        elif kind == "add_impulse":
-            speeds.append(float(np.linalg.norm(item.force)))
-        elif kind == "add_constant_force":
-            window = max(0.0, min(float(item.end), T) - max(float(item.start), 0.0))
-            if getattr(item, "unit", "seconds") == "substeps":
-                window = T  # (a window in substeps: bounded by the run)
-            speeds.append(float(np.linalg.norm(item.force)) * window)
-    out: dict[str, float] = {"speed_met": max(speeds), "duration": T}
-    if pts.shape[0] >= 4:
-        centred = pts - pts.mean(0)
-        _, _, vt = np.linalg.svd(centred, full_matrices=False)
-        proj = centred @ vt.T
-        ext = proj.max(0) - proj.min(0)
-        length = float(ext.max())
-        vols = getattr(sim_scene, "volumes", None)
-        candidates = [float(ext.min())]
-        if vols is not None and length > 0:
-            candidates.append(float(np.sqrt(float(np.sum(_np(vols))) / length)))
-        t = max(min(candidates), float(sim_scene.dx))
-        out["thickness"] = min(t, float(np.max(pts.max(0) - pts.min(0))))
-    return out
-
-
-def map_context(
-    cfg: RunConfig, sim_scene, density: float, n: int | None = None, closing_speed: float = 0.0
-):
-    """The sim-map context of a config and prepared scene (the one place it is made).
-
-    ``dt`` of the map: ``frame_dt / n`` (``n``: the fixed ``sim.substeps``, or under
-    ``auto`` the budget ``sim.max_substeps``); the scene's scales
-    (:func:`scene_scales`) tell the map which values can be seen.
-    """
-    from motionphysics.materials.simmap import SimContext
-
-    frame_dt = float(cfg.sim.frame_dt)
-    pts = np.asarray(_np(sim_scene.particles))
-    length = float(np.max(pts.max(0) - pts.min(0)))
-    gravity = float(np.linalg.norm(np.asarray(cfg.sim.gravity, dtype=np.float64)))
-    if n is None:
-        n = _budget(cfg) if cfg.sim.substeps == "auto" else int(cfg.sim.substeps)
-    return SimContext(
-        dx=float(sim_scene.dx),
-        dt=frame_dt / n,
-        density=float(density),
-        length=length,
-        gravity=gravity,
-        frame_dt=frame_dt,
-        **scene_scales(cfg, sim_scene, closing_speed),
-    )
-
-
-def _budget(cfg: RunConfig) -> int:
-    """Substeps per frame ``substeps: auto`` may spend (``sim.max_substeps``)."""
-    return int(cfg.sim.max_substeps)
-
-
-def sim_values(physical: Mapping[str, Any], cls: str, ctx) -> dict[str, Any]:
-    """Physical values (floats, 0-dim or [P] tensors; density included) -> simulation values.
-
-    The one evaluation of the sim map every command uses: inputs are cast to torch
-    float64 (differentiably), so a forward-only run and an optimisation at the same
-    physical values get the same simulation values to the last bit. Returns float64
-    tensors (0-dim or [P]).
-    """
-    import torch
-
-    from motionphysics.materials.simmap import physical_to_sim
-
-    phys = {
-        k: (
-            v.to(torch.float64)
-            if torch.is_tensor(v)
-            else torch.tensor(float(v), dtype=torch.float64)
-        )
-        for k, v in physical.items()
-        if k != "class"
-    }
-    return physical_to_sim(phys, ctx, cls=cls)
-
-
-def _floats(values: Mapping[str, Any]) -> dict[str, Any]:
-    out = {}
-    for k, v in values.items():
-        a = _np(v).astype(np.float64)
-        out[k] = float(a) if a.ndim == 0 else a
-    return out
-
-
-def resolve_substeps(cfg: RunConfig, cls: str, values: Mapping[str, Any], dx: float) -> int:
-    """Substeps per frame for simulation ``values`` under ``cfg`` (``auto``: the CFL limit)."""
-    if cfg.sim.substeps != "auto":
-        return int(cfg.sim.substeps)
-    from motionphysics.sim.solver import auto_substeps
-
-    return int(auto_substeps({"class": cls, **_floats(values)}, float(dx), float(cfg.sim.frame_dt)))
-
-
-def resolve_simulation(
-    material, cfg: RunConfig, sim_scene, closing_speed: float = 0.0
-) -> SimResolution:
-    """Map context, simulation values and substeps of ``material`` (MaterialParams).
-
-    The count comes from :func:`motionphysics.materials.simmap.plan_substeps`: a fixed
-    ``sim.substeps`` that would make the material behave as another class is refused
-    (one line saying what is needed); under ``auto`` the map spends up to the budget
-    ``sim.max_substeps`` to simulate every visible value as asked and the run's count is
-    the CFL count of the mapped values. ``notes`` (a visible change the budget forced,
-    with its consequence) are returned for the caller to print.
-    ``closing_speed``: several objects: the speed the others move at [m/s].
-    """
-    from motionphysics.materials.simmap import SCENE_KEYS, plan_substeps
-    from motionphysics.sim.solver import auto_substeps
-
-    ctx0 = map_context(cfg, sim_scene, float(material.density), closing_speed=closing_speed)
-    plan = plan_substeps(
-        material,
-        cfg.sim.substeps,
-        dx=float(ctx0.dx),
-        frame_dt=float(cfg.sim.frame_dt),
-        length=float(ctx0.length),
-        gravity=float(ctx0.gravity),
-        cfl_substeps=auto_substeps,
-        cap=_budget(cfg),
-        where="sim.substeps",
-        scene={k: getattr(ctx0, k) for k in SCENE_KEYS},
-    )
-    ctx = plan.ctx
-    phys = {"density": float(material.density), **{k: float(v) for k, v in material.values.items()}}
-    values = {k: float(v) for k, v in _floats(sim_values(phys, material.cls, ctx)).items()}
-    substeps = resolve_substeps(cfg, material.cls, values, float(sim_scene.dx))
-    return SimResolution(
-        values=values,
-        context=ctx,
-        substeps=substeps,
-        frame_dt=float(cfg.sim.frame_dt),
-        grid_dims=tuple(int(v) for v in sim_scene.grid_dims),
-        auto=cfg.sim.substeps == "auto",
-        notes=tuple(plan.notes),
-    )
-
-
-def _pinned(cfg: RunConfig, substeps: int) -> RunConfig:
-    """``cfg`` with ``sim.substeps`` fixed to the resolved count (what build_simulation gets)."""
-    return cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"substeps": int(substeps)})})
-
-
-def _material_sim(material, values: Mapping[str, Any]) -> dict[str, Any]:
-    """``build_simulation``'s material dict: the class (name, or per-particle ids of a
-    :class:`SceneMaterial`) and the simulation values."""
-    ids = getattr(material, "class_ids", None)
-    return {"class": ids if ids is not None else material.cls, **values}
-
-
-def simulate_forward(
-    sim_scene,
-    cfg: RunConfig,
-    material,
-    sim_values,
-    device,
-    frames: int,
-    st,
-    observer=None,
-    *,
-    initial_velocity=None,
-    keep: dict[str, Any] | None = None,
-):
-    """Forward simulation of ``frames`` frames (what ``run``/``simulate``/``fit`` output).
-
-    ``sim_values``: simulation values (of :func:`resolve_simulation`, or per particle
-    for a :class:`SceneMaterial`); the substep count is resolved from them by
-    :func:`resolve_substeps`. ``st``: a progress stage handle (``advance()``/``note()``).
-    ``initial_velocity``: [P, 3] m/s per particle (several objects), or None (the
-    config's ``sim.initial_velocity``). ``keep``: when given, ``keep["last"]`` receives
-    the rollout's full result (``active`` [T, P], ``wall_hits``). Returns x [T, P, 3] m,
-    F [T, P, 3, 3] and v [T, P, 3] m/s, float32 numpy (T = frames, frame 0 = the
-    initial state), and the substeps.
-    """
-    from motionphysics.sim import build_simulation
-
-    observer = observer or NullObserver()
-    msim = _material_sim(material, sim_values)
-    n = resolve_substeps(cfg, msim["class"], sim_values, float(sim_scene.dx))
-    sim = build_simulation(sim_scene, _pinned(cfg, n), msim, device)
-    if initial_velocity is not None:
-        sim.set_initial_velocity(initial_velocity)
-    st.note(f"simulate ({sim.substeps} substeps/frame)")
-    ro = sim.rollout
-    check = ro.check
-
-    # The rollout calls ``check`` once per simulated frame; that is the per-frame hook
-    # (sim/ has no observer of its own).
-    def check_and_count(state, frame):
-        check(state, frame)
-        st.advance()
-        observer.frame_simulated(int(frame), int(frames))
-
-    ro.check = check_and_count
-    st.advance()  # frame 0 is the initial state
-    xs, Fs, vs = sim.run(frames, return_velocities=True)
-    if keep is not None:
-        keep["last"] = sim.last
-    xs = np.asarray(_np(xs), dtype=np.float32)
-    Fs = np.asarray(_np(Fs), dtype=np.float32)
-    vs = np.asarray(_np(vs), dtype=np.float32)
-    if not (np.isfinite(xs).all() and np.isfinite(Fs).all()):
-        raise SimulationError(
-            "the simulation produced non-finite positions or deformation "
-            "gradients; lower sim.frame_dt or use more substeps"
-        )
-    return xs, Fs, vs, int(sim.substeps)
 
 
 # --------------------------------------------------------------------------------------
@@ -716,280 +360,6 @@ def estimate_objects(
 
 
 # --------------------------------------------------------------------------------------
-# camera, ground, rendering# --------------------------------------------------------------------------------------
-# camera, ground, rendering
-# --------------------------------------------------------------------------------------
-GROUND_FRICTION = 0.3
-"""Coulomb coefficient of the default ground (``sim.boundary.DEFAULT_COLLIDER_FRICTION``)."""
-
-
-def default_ground(cfg: RunConfig, lowest_z: float, size: float) -> tuple[RunConfig, str | None]:
-    """``cfg`` with the default ground when it leaves ``boundary_conditions`` out.
-
-    Left out (null): one frictional ``surface_collider`` facing +z (friction
-    :data:`GROUND_FRICTION`) at z = 0 when the scene rests on or above it, else under
-    the scene's lowest particle ``lowest_z`` [m] (a scene that reaches below z = 0
-    stands on a floor there instead of starting inside one); ``size`` [m] (the scene's
-    extent) sets the round-off tolerance. ``boundary_conditions: []`` is free space: no
-    ground. Returns the config with the collider written in (``run.yaml`` records it)
-    and the summary's ``ground:`` line (None when the config gave its own list). With a
-    ``region`` of a capture the static scene is the support and no floor is added
-    (:func:`motionphysics.assembly_scene.region_ground`).
-    """
-    from motionphysics.assembly_scene import region_ground
-
-    by_region = region_ground(cfg)
-    if by_region is not None:
-        return by_region
-    if cfg.boundary_conditions is not None:
-        return cfg, None
-    z = 0.0 if lowest_z >= -1e-4 * max(size, 1e-6) else float(lowest_z)
-    floor = SurfaceCollider(
-        type="surface_collider",
-        point=(0.0, 0.0, z),
-        normal=(0.0, 0.0, 1.0),
-        mode="frictional",
-        friction=GROUND_FRICTION,
-    )
-    where = (
-        "z = 0"
-        if z == 0.0
-        else f"z = {z:.4g} (under the scene's lowest point, which lies below z = 0)"
-    )
-    note = (
-        f"ground: frictional floor at {where} (boundary_conditions left out; "
-        "`boundary_conditions: []` for free space)"
-    )
-    return cfg.model_copy(update={"boundary_conditions": [floor]}), note
-
-
-def _lowest(scene, scene_cfg) -> tuple[float, float]:
-    """(lowest z [m], largest extent [m]) of the splat centres ``prepare`` will simulate."""
-    from motionphysics.scene.prepare import selected_means
-
-    pts = selected_means(scene, scene_cfg)
-    return float(pts[:, 2].min()), float(np.ptp(pts, axis=0).max())
-
-
-def _ground_height(cfg: RunConfig, xy_centre: np.ndarray, up: np.ndarray) -> float | None:
-    """Height (along ``up``) of the highest upward-facing collider plane under the object."""
-    best = None
-    for bc in cfg.boundary_conditions or []:
-        if isinstance(bc, SurfaceCollider) and bc.mode != "cut":
-            n = np.asarray(bc.normal, dtype=np.float64)
-            n = n / max(np.linalg.norm(n), 1e-12)
-            if float(n @ up) > 0.7:
-                # plane n.(p - point) = 0, evaluated under the object's centre
-                p0 = np.asarray(bc.point, dtype=np.float64)
-                c = xy_centre.copy()
-                # move c along up until it is on the plane
-                s = float(n @ (p0 - c)) / float(n @ up)
-                h = float((c + s * up) @ up)
-                best = h if best is None else max(best, h)
-    return best
-
-
-def _up(cfg: RunConfig) -> np.ndarray:
-    g = np.asarray(cfg.sim.gravity, dtype=np.float64)
-    n = np.linalg.norm(g)
-    return -g / n if n > 0 else np.array([0.0, 0.0, 1.0])
-
-
-def _object_box(sim_scene) -> tuple[np.ndarray, np.ndarray]:
-    """Robust bounding box [3], [3] of the visible splat centres [m] (0.5 / 99.5 percentiles)."""
-    pts = _np(sim_scene.splats.means).astype(np.float64)
-    return np.percentile(pts, 0.5, axis=0), np.percentile(pts, 99.5, axis=0)
-
-
-def _fit_radius(corners: np.ndarray, cam, fill: float = 0.9) -> float:
-    """Smallest orbit radius at which every corner [K, 3] projects inside ``fill`` of the image."""
-    import torch
-
-    from motionphysics.render.camera import orbit_camera
-
-    pts = torch.as_tensor(corners, dtype=torch.float64)
-
-    def fits(r: float) -> bool:
-        c = orbit_camera(cam.azimuth, cam.elevation, r, cam.look_at, cam.fov, cam.width, cam.height)
-        uv, z = c.project(pts)
-        if bool((z <= 1e-3).any()):
-            return False
-        u = (uv[:, 0] - c.cx) / (0.5 * c.width)
-        v = (uv[:, 1] - c.cy) / (0.5 * c.height)
-        return bool((u.abs() <= fill).all() and (v.abs() <= fill).all())
-
-    lo, hi = 1e-3, 1.0
-    while not fits(hi):
-        hi *= 2.0
-        if hi > 1e7:
-            raise UserInputError(
-                "camera: could not frame the scene automatically; set camera.radius"
-            )
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
-    return hi
-
-
-def resolve_camera(cfg: RunConfig, sim_scene, xs=None) -> tuple[RunConfig, dict[str, Any]]:
-    """The run camera; when the config leaves ``radius`` and ``look_at`` unset, frame the scene.
-
-    Auto-framing keeps in view the object and, when there is a ground (the highest
-    upward-facing collider plane under the object), the ground below it widened
-    sideways by an eighth of the object's size so material spreading on the ground
-    stays visible. It searches the orbit radius at which all of that fits in 90 % of
-    the image. Without a ground collider the floor of the simulation domain plays the
-    ground's part when it is near. Returns the config with the resolved camera written in (so ``run.yaml``
-    reproduces the view) and a note for ``params.json``.
-
-    ``xs`` (particle positions [T, P, 3] of a simulated run): frame the whole trajectory
-    (the union of every frame's box), so an object that travels stays in the picture.
-    """
-    cam = cfg.camera
-    explicit = cam.model_fields_set
-    if cam.camera_file or {"radius", "look_at"} & explicit:
-        return cfg, {"framing": "config"}
-    lo, hi = _object_box(sim_scene)
-    if xs is not None:
-        from motionphysics.render.camera import trajectory_bounds
-
-        t_lo, t_hi = (np.asarray(b, dtype=np.float64) for b in trajectory_bounds(_np(xs)))
-        lo, hi = np.minimum(lo, t_lo), np.maximum(hi, t_hi)
-    up = _up(cfg)
-    size = float(np.max(hi - lo))
-    box_lo, box_hi = lo.copy(), hi.copy()
-    ground = _ground_height(cfg, 0.5 * (lo + hi), up)
-    if ground is None and up[2] > 0.99 and np.linalg.norm(cfg.sim.gravity) > 0:
-        # No ground collider: a falling object stops at the domain floor; keep it in view
-        # when that floor is near (a user-given domain may be far larger than the object).
-        wall_lo = sim_scene.wall_lo if sim_scene.wall_lo is not None else sim_scene.domain_lo
-        floor = float(_np(wall_lo)[2])
-        if lo[2] - floor < 3.0 * size:
-            ground = floor
-    if ground is not None and abs(up[2]) > 0.99:
-        box_lo[2] = min(box_lo[2], ground) if up[2] > 0 else box_lo[2]
-        box_hi[2] = box_hi[2] if up[2] > 0 else max(box_hi[2], ground)
-        box_lo[:2] -= 0.12 * size
-        box_hi[:2] += 0.12 * size
-    corners = np.array(
-        [
-            [x, y, z]
-            for x in (box_lo[0], box_hi[0])
-            for y in (box_lo[1], box_hi[1])
-            for z in (box_lo[2], box_hi[2])
-        ]
-    )
-    look_at = tuple(float(v) for v in 0.5 * (box_lo + box_hi))
-    probe = cam.model_copy(update={"look_at": look_at})
-    radius = _fit_radius(corners, probe)
-    new_cam = cam.model_copy(update={"look_at": look_at, "radius": float(radius)})
-    what = "trajectory" if xs is not None else "object"
-    return cfg.model_copy(update={"camera": new_cam}), {"framing": f"auto ({what} and ground)"}
-
-
-def ground_splats(cfg: RunConfig, sim_scene) -> dict[str, Any] | None:
-    """Static splats drawing the ground as a grey checker floor (render only; not simulated).
-
-    Drawn when ``camera.show_ground`` is on and a surface collider faces up under the
-    object. A square centred below it, of half-side max(1.5 x object size, 1.2 x camera
-    radius), checker cells of a sixth of the object's size (at least three splats wide). Returns ``{means [G,3] m, covs [G,3,3] m^2, colors [G,3],
-    opacities [G]}`` float32 tensors, or None.
-    """
-    import torch
-
-    if not getattr(cfg.camera, "show_ground", True):
-        return None
-    up = _up(cfg)
-    if abs(up[2]) < 0.99:
-        return None
-    lo, hi = _object_box(sim_scene)
-    centre = 0.5 * (lo + hi)
-    ground = _ground_height(cfg, centre, up)
-    if ground is None:
-        return None
-    size = max(float(np.max(hi - lo)), 1e-3)
-    # Wide enough to reach the edges of the view (the camera looks at the object from
-    # ``radius`` away), so the floor does not read as a small mat under a distant camera.
-    half = max(1.5 * size, 1.2 * float(cfg.camera.radius))
-    n = 80
-    step = 2 * half / n
-    g = (np.arange(n) + 0.5) * step - half
-    gx, gy = np.meshgrid(centre[0] + g, centre[1] + g, indexing="ij")
-    z = ground - 0.004 * size
-    means = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], -1)
-    cell = max(size / 6, 3.0 * step)
-    parity = (
-        np.floor((gx.ravel() - centre[0]) / cell) + np.floor((gy.ravel() - centre[1]) / cell)
-    ) % 2
-    colors = np.where(parity[:, None] == 0, [0.80, 0.80, 0.78], [0.66, 0.67, 0.66])
-    sxy = 0.62 * step
-    covs = np.zeros((means.shape[0], 3, 3))
-    covs[:, 0, 0] = covs[:, 1, 1] = sxy**2
-    covs[:, 2, 2] = (0.002 * size) ** 2
-    f32 = torch.float32
-    return {
-        "means": torch.as_tensor(means, dtype=f32),
-        "covs": torch.as_tensor(covs, dtype=f32),
-        "colors": torch.as_tensor(colors, dtype=f32),
-        "opacities": torch.full((means.shape[0],), 0.98, dtype=f32),
-    }
-
-
-def render_view(sim_scene, x, F, camera, background, ground: dict[str, Any] | None = None):
-    """One frame: object splats following particles ``x`` [P,3] m, ``F`` [P,3,3] (+ ground,
-    + the static splats of a ``scene.region`` run, unchanged).
-
-    Returns rgb [H, W, 3] float32 in [0, 1] (torch, no autograd needed by callers here).
-    """
-    import torch
-
-    from motionphysics.render.deform import deform_splats
-    from motionphysics.render.rasterize import rasterize
-
-    splats = sim_scene.splats
-    x = torch.as_tensor(x, dtype=torch.float32)
-    F = torch.as_tensor(F, dtype=torch.float32)
-    means, covs, colors = deform_splats(
-        splats, x, F, sim_scene.splat_parent.long(), sim_scene.splat_offset.to(x), camera
-    )
-    opac = splats.opacities.to(x)
-    if ground is not None:
-        means = torch.cat([means, ground["means"]])
-        covs = torch.cat([covs, ground["covs"]])
-        colors = torch.cat([colors.clamp(0, 1), ground["colors"]])
-        opac = torch.cat([opac, ground["opacities"]])
-    from motionphysics.assembly_scene import static_splats_view
-
-    static = static_splats_view(sim_scene, camera, means)
-    if static is not None:
-        means = torch.cat([means, static["means"]])
-        covs = torch.cat([covs, static["covs"]])
-        colors = torch.cat([colors, static["colors"]])
-        opac = torch.cat([opac, static["opacities"]])
-    return rasterize(means, covs, colors, opac, camera, background).rgb
-
-
-def render_frames(sim_scene, xs, Fs, camera, background, ground, on_frame=None) -> np.ndarray:
-    """Render every frame without autograd: x [T,P,3], F [T,P,3,3] -> uint8 [T, H, W, 3]."""
-    import torch
-
-    out = []
-    with torch.no_grad():
-        for i in range(xs.shape[0]):
-            rgb = render_view(
-                sim_scene,
-                torch.as_tensor(xs[i]),
-                torch.as_tensor(Fs[i]),
-                camera,
-                background,
-                ground,
-            )
-            out.append((np.clip(_np(rgb), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
-            if on_frame is not None:
-                on_frame()
-    return np.stack(out)
-
-
 # --------------------------------------------------------------------------------------
 # the adapters the optimisation loop consumes
 # --------------------------------------------------------------------------------------
