@@ -1,10 +1,11 @@
-"""The README and --help say the same thing, help texts are written for users, and no file
-of the repository points at a file the repository does not have.
+"""The references and --help say the same thing, help texts are written for users, and no
+file of the repository points at a file the repository does not have.
 
-The README's command, config and loss references are generated (motionphysics.docs_cli)
-from the parsers, the config models and the losses' Options models; the first test fails
-when they are stale. The flag tests read the README independently of the generator, so a
-hand-written example that names a flag a command does not have fails too.
+The command, config and loss references (docs/commands.md, docs/config.md, linked from the
+README) are generated (motionphysics.docs_cli) from the parsers, the config models and the
+losses' Options models; the first test fails when they are stale. The flag tests read the
+documents independently of the generator, so a hand-written example that names a flag a
+command does not have fails too.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from motionphysics.cli import GLOBAL_OPTIONS, build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-FIX = "run `python -m motionphysics.docs_cli` to regenerate README.md"
+COMMANDS = ROOT / "docs" / "commands.md"
+CONFIG = ROOT / "docs" / "config.md"
+FIX = "run `python -m motionphysics.docs_cli` to regenerate docs/commands.md and docs/config.md"
 
 
 @pytest.fixture(scope="module")
@@ -39,10 +42,18 @@ def readme() -> str:
     return README.read_text(encoding="utf-8")
 
 
+def commands_doc() -> str:
+    return COMMANDS.read_text(encoding="utf-8")
+
+
+def config_doc() -> str:
+    return CONFIG.read_text(encoding="utf-8")
+
+
 def section(text: str, heading: str) -> str:
     """The text of the level-2 section ``## heading`` (up to the next level-2 heading)."""
     m = re.search(rf"^## {re.escape(heading)}\n(.*?)(?=^## |\Z)", text, re.S | re.M)
-    assert m, f"README.md has no '## {heading}' section"
+    assert m, f"no '## {heading}' section"
     return m.group(1)
 
 
@@ -57,15 +68,27 @@ GLOBAL = {flag for flag, _ in GLOBAL_OPTIONS}
 
 
 def test_generated_blocks_are_current():
-    text = readme()
-    names = docs_cli.block_names(text)
-    assert sorted(names) == sorted(docs_cli.BLOCKS), names
-    fresh = docs_cli.render_blocks(text)
-    if fresh != text:
-        diff = "\n".join(
-            list(difflib.unified_diff(text.splitlines(), fresh.splitlines(), lineterm=""))[:40]
-        )
-        pytest.fail(f"README.md is stale; {FIX}\n{diff}")
+    seen = []
+    for name, blocks in docs_cli.REFERENCE_FILES.items():
+        text = (ROOT / name).read_text(encoding="utf-8")
+        names = docs_cli.block_names(text)
+        assert sorted(names) == sorted(blocks), (name, names)
+        seen += names
+        fresh = docs_cli.render_blocks(text)
+        if fresh != text:
+            diff = "\n".join(
+                list(difflib.unified_diff(text.splitlines(), fresh.splitlines(), lineterm=""))[:40]
+            )
+            pytest.fail(f"{name} is stale; {FIX}\n{diff}")
+    assert sorted(seen) == sorted(docs_cli.BLOCKS), seen
+    # The README holds no generated block (it links the references instead).
+    assert docs_cli.block_names(readme()) == []
+
+
+def test_the_readme_links_the_generated_references():
+    links = set(re.findall(r"\]\(([^)\s#]+)", readme()))
+    for name in docs_cli.REFERENCE_FILES:
+        assert name in links, f"README.md does not link {name}"
 
 
 def test_readme_starts_with_make_demo_and_make_test():
@@ -77,38 +100,40 @@ def test_readme_starts_with_make_demo_and_make_test():
 
 
 def command_sections(text: str) -> dict[tuple[str, ...], str]:
-    """``{("run",): text, ("bench", "mpm"): text, ...}`` of the README's Commands section."""
-    body = section(text, "Commands")
+    """``{("run",): text, ("bench", "mpm"): text, ...}`` of docs/commands.md's reference."""
+    body = section(text, "Command reference")
     parts = re.split(r"^#### `motionphysics ([^`]+)`\n", body, flags=re.M)
     return {tuple(parts[i].split()): parts[i + 1] for i in range(1, len(parts), 2)}
 
 
 def test_every_command_has_a_readme_section_and_back(parsers):
-    documented = command_sections(readme())
+    documented = command_sections(commands_doc())
     assert set(documented) == set(parsers), (
-        f"in parsers, not README: {sorted(set(parsers) - set(documented))}; "
-        f"in README, not parsers: {sorted(set(documented) - set(parsers))}; {FIX}"
+        f"in parsers, not docs/commands.md: {sorted(set(parsers) - set(documented))}; "
+        f"in docs/commands.md, not parsers: {sorted(set(documented) - set(parsers))}; {FIX}"
     )
 
 
 def test_every_flag_of_a_command_is_in_its_readme_section_and_back(parsers):
-    documented = command_sections(readme())
+    documented = command_sections(commands_doc())
     for path, p in parsers.items():
         text = documented.get(path, "")
         named = set(re.findall(r"(?<![\w-])(--[a-z][\w-]*)", text))
         flags = flags_of(p)
         missing = {f for f in flags - named if f not in GLOBAL}
         assert not missing, (
-            f"motionphysics {' '.join(path)}: {sorted(missing)} not in README; {FIX}"
+            f"motionphysics {' '.join(path)}: {sorted(missing)} not in docs/commands.md; {FIX}"
         )
         # A command's description may name its sub-commands' flags (bench: --json).
         below = {f for q, sp in parsers.items() if q[: len(path)] == path for f in flags_of(sp)}
         extra = named - flags - below - GLOBAL
-        assert not extra, f"README names {sorted(extra)} for motionphysics {' '.join(path)}"
+        assert not extra, (
+            f"docs/commands.md names {sorted(extra)} for motionphysics {' '.join(path)}"
+        )
 
 
 def test_every_positional_is_in_its_readme_section(parsers):
-    documented = command_sections(readme())
+    documented = command_sections(commands_doc())
     for path, p in parsers.items():
         for a in p._actions:
             if a.option_strings or isinstance(a, argparse._SubParsersAction):
@@ -151,7 +176,7 @@ def test_examples_in_the_docs_use_real_flags(name, parsers):
         allowed = flags_of(parsers[key]) | GLOBAL
         for flag in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", rest):
             assert flag in allowed, f"{name}: motionphysics {' '.join(key)} has no {flag}"
-    if name == "README.md":
+    if name == "docs/commands.md":
         assert seen > 20, seen  # the check looked at the command reference
 
 
@@ -281,7 +306,7 @@ def _is_section_field(ann) -> bool:
 
 def test_units_and_defaults_of_the_boundary_and_force_tables():
     """Spot checks against the physics (not the generator): a few values a person relies on."""
-    text = section(readme(), "Config reference")
+    text = section(config_doc(), "Keys, types, defaults and units")
     rows = {
         (r.split("|")[1].strip(), r.split("|")[3].strip(), r.split("|")[4].strip())
         for r in text.splitlines()
@@ -301,26 +326,29 @@ def test_unit_extraction():
     assert docs_cli.unit_of("``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` [m]; null") == "m"
     assert docs_cli.unit_of("Viscosity [Pa s] (fluids).") == "Pa s"
     assert docs_cli.unit_of("Poisson's ratio [-].") == "-"
+    assert docs_cli.unit_of("a mapping by object name (``{duck: [E], block: [E, nu]}``)") == ""
 
 
 def test_loss_table_lists_every_registered_loss():
     from motionphysics.losses import LOSSES
 
-    text = readme()
+    text = section(config_doc(), "Losses")
     for name in LOSSES.names():
         assert f"`{{type: {name}}}` options" in text, name
 
 
-def test_check_mode_reports_a_stale_readme(tmp_path):
-    stale = tmp_path / "README.md"
+def test_check_mode_reports_a_stale_reference(tmp_path):
+    stale = tmp_path / "commands.md"
     end = "\n<!-- END GENERATED: commands -->"
-    text = readme().replace(end, "\n| `--no-such-flag` | stale row |" + end, 1)
-    assert text != readme()
+    text = commands_doc().replace(end, "\n| `--no-such-flag` | stale row |" + end, 1)
+    assert text != commands_doc()
     stale.write_text(text, encoding="utf-8")
     assert docs_cli.main([str(stale), "--check"]) == 1
     assert stale.read_text(encoding="utf-8") == text  # --check never writes
     assert docs_cli.main([str(stale)]) == 0
-    assert stale.read_text(encoding="utf-8") == readme()
+    assert stale.read_text(encoding="utf-8") == commands_doc()
+    # Without a file, every reference of the repository is checked (and is current).
+    assert docs_cli.main(["--check"]) == 0
 
 
 # --- no references to files the repository does not have -----------------------------------
@@ -430,12 +458,12 @@ def test_reference_check_catches_a_missing_file(tmp_path):
     }, bad
 
 
-def test_the_readme_example_config_loads(tmp_path):
-    """The Config reference's YAML example is a valid run config (keys, values, plug-ins)."""
+def test_the_config_reference_example_loads(tmp_path):
+    """docs/config.md's YAML example is a valid run config (keys, values, plug-ins)."""
     from motionphysics.runconfig import load_run_config
 
-    m = re.search(r"```yaml\n(.*?)```", section(readme(), "Config reference"), re.S)
-    assert m, "the Config reference has a YAML example"
+    m = re.search(r"```yaml\n(.*?)```", config_doc(), re.S)
+    assert m, "docs/config.md has a YAML example"
     path = tmp_path / "example.yaml"
     path.write_text(m.group(1), encoding="utf-8")
     cfg = load_run_config(str(path), {})

@@ -1,11 +1,13 @@
-"""The README's generated reference: commands from the argparse parsers, config keys from the
+"""The generated references: commands from the argparse parsers, config keys from the
 pydantic config models, loss options from the ``LOSSES`` registry's ``Options`` models.
 
-``python -m motionphysics.docs_cli`` rewrites the generated blocks of README.md in place
-(each between ``<!-- BEGIN GENERATED: NAME ... -->`` and ``<!-- END GENERATED: NAME -->``);
-``--check`` only compares and exits 1 when the README is stale. tests/test_readme_cli.py
-runs the check, so a flag, a help text, a config key, a default or a loss option cannot
-change without the README changing with it.
+They live in ``docs/commands.md`` (block ``commands``) and ``docs/config.md`` (blocks
+``config`` and ``losses``); the README links them. ``python -m motionphysics.docs_cli``
+rewrites the generated blocks of those files in place (each between ``<!-- BEGIN
+GENERATED: NAME ... -->`` and ``<!-- END GENERATED: NAME -->``); ``--check`` only compares
+and exits 1 when a file is stale. tests/test_readme_cli.py runs the check, so a flag, a
+help text, a config key, a default or a loss option cannot change without the reference
+changing with it.
 
 Everything is read from the objects the program itself uses (``cli.build_parser()``,
 ``config.RunConfig`` and its nested models, ``LOSSES.get(name).Options``); field
@@ -34,8 +36,9 @@ __all__ = [
     "help_texts",
     "iter_parsers",
     "loss_reference",
+    "REFERENCE_FILES",
     "render_blocks",
-    "update_readme",
+    "update_file",
 ]
 
 USAGE_WIDTH = 96
@@ -276,7 +279,9 @@ _UNIT_OK = re.compile(r"^(?:[A-Za-z]+(?:[/^.* ]?[A-Za-z0-9^]+)*|-)$")
 
 
 def unit_of(doc: str) -> str:
-    """The unit in square brackets of a field docstring (``[m/s]``), '' when none."""
+    """The unit in square brackets of a field docstring (``[m/s]``), '' when none. Brackets
+    inside code (``{duck: [E]}``) are examples, not units."""
+    doc = re.sub(r"``.*?``|`[^`]*`", "", doc, flags=re.S)
     for m in _UNIT.finditer(doc):
         u = m.group(1).strip()
         if _UNIT_OK.match(u) and not u.isdigit():
@@ -503,14 +508,20 @@ def loss_reference() -> str:
     return "\n".join(lines).rstrip("\n")
 
 
-# --- README blocks ------------------------------------------------------------------------
+# --- reference blocks ---------------------------------------------------------------------
 
 BLOCKS = {
     "commands": command_reference,
     "config": config_reference,
     "losses": loss_reference,
 }
-"""Generated README blocks by name (the name in the BEGIN/END markers)."""
+"""Generated reference blocks by name (the name in the BEGIN/END markers)."""
+
+REFERENCE_FILES = {
+    "docs/commands.md": ("commands",),
+    "docs/config.md": ("config", "losses"),
+}
+"""The files that hold the generated blocks (relative to the repository root), and which."""
 
 _BLOCK = re.compile(
     r"(<!-- BEGIN GENERATED: (?P<name>\w+)[^>]*-->)\n(?P<body>.*?)\n?(<!-- END GENERATED: (?P=name) -->)",
@@ -537,7 +548,7 @@ def block_names(text: str) -> list[str]:
     return [m.group("name") for m in _BLOCK.finditer(text)]
 
 
-def update_readme(path: str | Path = "README.md", check: bool = False) -> bool:
+def update_file(path: str | Path, check: bool = False) -> bool:
     """Rewrite the generated blocks of ``path``; True when it was already current."""
     p = Path(path)
     old = p.read_text(encoding="utf-8")
@@ -547,17 +558,31 @@ def update_readme(path: str | Path = "README.md", check: bool = False) -> bool:
     return new == old
 
 
+def _repo_root() -> Path:
+    """The repository holding this checkout (the folder with pyproject.toml and docs/)."""
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / "pyproject.toml").is_file() and (parent / "docs").is_dir():
+            return parent
+    return Path.cwd()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m motionphysics.docs_cli",
-        description="Regenerate the command, config and loss reference blocks of README.md.",
+        description="Regenerate the command, config and loss references "
+        f"({', '.join(REFERENCE_FILES)}).",
     )
-    ap.add_argument("readme", nargs="?", default="README.md", help="file to update")
-    ap.add_argument("--check", action="store_true", help="exit 1 if the file is out of date")
+    ap.add_argument(
+        "files", nargs="*", help="files to update (default: the reference files of the repository)"
+    )
+    ap.add_argument("--check", action="store_true", help="exit 1 if a file is out of date")
     args = ap.parse_args(argv)
-    current = update_readme(args.readme, check=args.check)
-    if args.check and not current:
-        print(f"{args.readme}: generated blocks are stale; run python -m motionphysics.docs_cli")
+    files = args.files or [str(_repo_root() / f) for f in REFERENCE_FILES]
+    stale = [f for f in files if not update_file(f, check=args.check)]
+    if args.check and stale:
+        for f in stale:
+            print(f"{f}: generated blocks are stale; run python -m motionphysics.docs_cli")
         return 1
     return 0
 

@@ -16,8 +16,22 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 OWN = sorted(p for p in EXAMPLES.glob("*.yaml") if p.name != "demo.yaml")
 
 
+def kb_estimate(cfg):
+    """The offline estimate from the prompt (what `run` and `simulate` use when the config
+    leaves the class out), or None when the config names the class."""
+    if cfg.material.class_ is not None:
+        return None
+    from motionphysics.assembly import estimate_material
+
+    return estimate_material(cfg.prompt, None, "kb")
+
+
 def test_there_is_an_example_per_material_class():
-    classes = {load_config(p).material.class_ for p in OWN}
+    classes = set()
+    for p in OWN:
+        cfg = load_config(p)
+        est = kb_estimate(cfg)
+        classes.add(cfg.material.class_ if est is None else est["class"])
     assert classes == set(MATERIAL_CLASSES)
 
 
@@ -73,7 +87,7 @@ def simulate(path: Path):
     from motionphysics.sim import build_simulation
 
     cfg, scene = prepared(path)
-    material = resolve_material(cfg, None)["material"]
+    material = resolve_material(cfg, kb_estimate(cfg))["material"]
     sim_values, _ = _map_to_sim(material, cfg, scene)
     sim = build_simulation(scene, cfg, {"class": material.cls, **sim_values}, "cpu")
     xs, _ = sim.run(cfg.sim.frames)
