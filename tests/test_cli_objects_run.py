@@ -124,6 +124,11 @@ def test_run_motion_prior_refines_each_object_with_its_phrase(tmp_path, capsys):
     assert 0 < cube.num_splats < all_splats.num_splats
     assert np.all(oid[cube.parent] == 1)
     assert cube.num_splats == int((oid[all_splats.parent] == 1).sum())
+    # the viewer's curves: one per object's parameter
+    from motionphysics.viewer.server import history_series
+
+    series = history_series(cube.history())
+    assert np.isfinite(series["param:ball.E"]).all() and np.isfinite(series["param:cube.E"]).all()
 
 
 def test_run_frames_prior_sees_the_whole_scene_with_the_whole_prompt(tmp_path):

@@ -311,3 +311,38 @@ def test_coordinate_search_finds_a_separable_minimum_a_hypercube_misses():
     best = points[int(np.argmin(scores))]
     assert len(points) <= 1 + 9 * 2 + 4 * 2
     assert np.all(np.abs(best - target) < 0.05), best
+
+
+def test_an_interrupted_optimisation_of_two_objects_resumes_to_the_same_parameters(
+    two_balls, tmp_path
+):
+    from motionphysics.optimize.loop import optimize
+
+    parts = two_balls
+    ref_parts = parts.with_materials(
+        [type(o.material)("elastic", 500.0, {"E": 3.0e4, "nu": 0.3}) for o in parts.objects]
+    )
+    xs, _, _, _ = ref_parts.simulate(3)
+    w = torch.ones(tuple(np.asarray(xs).shape), dtype=torch.float64)
+    opt = parts.cfg.optimize.model_copy(update={"lr": 0.1, "warmup": 0, "boost": 1})
+
+    def problem():
+        loss = _TrajectoryL2(torch.as_tensor(np.asarray(xs), dtype=torch.float64), w)
+        return build_objects_problem(parts, loss, {"a": ["E"], "b": ["E"]})
+
+    whole = optimize(problem(), opt, tmp_path / "whole", iterations=3)
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_one(rec):
+        if rec["iteration"] == 0:
+            raise Stop
+
+    with pytest.raises(Stop):
+        optimize(problem(), opt, tmp_path / "cut", iterations=3, progress=stop_after_one)
+    resumed = optimize(problem(), opt, tmp_path / "cut", iterations=3, resume=True)
+    assert [r["iteration"] for r in resumed.history] == [0, 1, 2]
+    for k in ("a.E", "b.E"):
+        assert float(resumed.theta[k]) == float(whole.theta[k])
+    assert resumed.params == whole.params and set(whole.params) == {"a", "b"}

@@ -189,6 +189,10 @@ def history_series(history: list[dict[str, Any]]) -> dict[str, np.ndarray]:
     Values are float64 ``[I]`` (NaN where a record lacks them); parameters come from
     each record's ``params`` (physical units, SI).
     """
+    from motionphysics.optimize.objects import flat_params
+
+    # several objects: each object's values as OBJECT.PARAM curves
+    history = [{**r, "params": flat_params(r.get("params") or {})} for r in history]
     its = np.array([float(r.get("iteration", i)) for i, r in enumerate(history)], dtype=np.float64)
     out: dict[str, np.ndarray] = {"iteration": its}
 
