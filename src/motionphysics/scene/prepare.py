@@ -44,6 +44,7 @@ __all__ = [
     "prepare_objects",
     "selected_means",
     "transform_scene",
+    "scene_transform",
     "rotation_matrix",
     "regularise_anisotropy",
     "fit_domain",
@@ -147,6 +148,21 @@ def rotation_matrix(axis: str, degrees: float) -> np.ndarray:
     if axis == "z":
         return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
     raise UserInputError(f"scene.rotate: axis must be 'x', 'y' or 'z', got {axis!r}")
+
+
+def scene_transform(scene_cfg) -> np.ndarray:
+    """The 4x4 float64 matrix ``x_world = s R x_source + t`` of a scene config's
+    ``up``, ``scale``, ``rotate`` and ``translate`` (what :func:`transform_scene` applies;
+    a capture's cameras follow it into the world)."""
+    from motionphysics.scene.region import up_rotation
+
+    r = up_rotation(getattr(scene_cfg, "up", "z"))
+    for axis, deg in scene_cfg.rotate:
+        r = rotation_matrix(axis, float(deg)) @ r
+    m = np.eye(4)
+    m[:3, :3] = float(scene_cfg.scale) * r
+    m[:3, 3] = np.asarray(scene_cfg.translate, dtype=np.float64)
+    return m
 
 
 def transform_scene(
