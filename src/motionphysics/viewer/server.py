@@ -220,11 +220,14 @@ def history_series(history: list[dict[str, Any]]) -> dict[str, np.ndarray]:
 def _camera_view(cfg) -> dict[str, Any]:
     """Start view of a run config's camera: position, look_at, up, vertical fov [rad]."""
     from motionphysics.render.camera import camera_from_config
+    from motionphysics.scene.prepare import scene_transform
 
-    cam = camera_from_config(cfg.camera)
+    # a capture's cameras follow the scene transform (of the first object, as the run's)
+    scene = cfg.objects[0] if cfg.objects else cfg.scene
+    cam = camera_from_config(cfg.camera, scene_transform(scene))
     pos = cam.position.numpy()
     R = cam.rotation.numpy()  # rows: right, down, forward
-    if cfg.camera.cameras_json:
+    if cfg.camera.camera_file:
         look_at = pos + R[2] * float(cfg.camera.radius)
     else:
         look_at = np.asarray(cfg.camera.look_at, dtype=np.float64)
