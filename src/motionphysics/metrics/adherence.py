@@ -221,7 +221,7 @@ BEHAVIOURS: dict[str, Behaviour] = {
             0.75,
             "swings of the shape (RMS or 99th-percentile Procrustes residual, or the strain"
             " along the rest axis that changes most, or the angle between a slender body's end"
-            " slabs in units of 100 deg with swings over 2 deg: all"
+            " slabs (signed) in units of 100 deg with swings over 2 deg: all"
             " rotation-free) in one decaying train from its first swing on: each over 1 % of"
             " L and over half the swing before it, so one droop or one squash followed by"
             " small wiggles is not an oscillation (3 swings: one and a half periods)",
@@ -639,9 +639,11 @@ damping ratio up to about 0.2 between half-periods)."""
 
 def _swing_train(signal: np.ndarray, t: np.ndarray, floor: float) -> dict[str, float]:
     """The oscillation of ``signal`` (see ``BEHAVIOURS["oscillate"]``): the train of swings
-    from its FIRST swing over ``floor`` on, each at least :data:`DECAY` of the one before
-    -> {swings, amplitude (half the mean swing), frequency_hz}. A rod that droops to the
-    floor and wiggles there makes one big swing and then small ones: a train of one."""
+    from the first swing over ``floor`` (or from the second when it is over twice the
+    first: a precursor of the real excitation) while each is at least :data:`DECAY` of
+    the one before -> {swings, amplitude (half the mean swing), frequency_hz}. A rod that
+    droops to the floor and lies there makes one big swing and then small ones: a train
+    of one."""
     pts = _extrema(signal, floor)
     sw = [abs(pts[k][1] - pts[k - 1][1]) for k in range(1, len(pts))]
     k = next((i for i, s in enumerate(sw) if s >= floor), None)
@@ -649,6 +651,8 @@ def _swing_train(signal: np.ndarray, t: np.ndarray, floor: float) -> dict[str, f
         return {"swings": 0.0, "amplitude": 0.0, "frequency_hz": 0.0}
     j = k + 1
     while j < len(sw) and sw[j] >= max(floor, DECAY * sw[j - 1]):
+        if sw[j] > sw[j - 1] / DECAY and j == k + 1:
+            k = j  # the first swing was a precursor of the real excitation: start there
         j += 1
     n = j - k
     span = float(t[pts[j][0]] - t[pts[k][0]])
@@ -787,12 +791,19 @@ def measure(
     ends = np.array_split(order, 6)
     end_angle = None
     if sv[0] > 2.0 * sv[1] and ends[0].size >= 4 and ends[-1].size >= 4:
-        end_angle = []
+        # SIGNED: the relative rotation's vector (sin(angle) times its axis, [deg]) along
+        # its direction of largest variance, so a bend up and a bend down differ
+        vecs = []
         for i in range(T):
             ra = _kabsch(x[0][ends[0]], x[i][ends[0]], m[ends[0]])[0]
             rb = _kabsch(x[0][ends[-1]], x[i][ends[-1]], m[ends[-1]])[0]
-            c = (np.trace(ra.T @ rb) - 1.0) / 2.0
-            end_angle.append(math.degrees(math.acos(max(-1.0, min(1.0, c)))))
+            rr = ra.T @ rb
+            vecs.append(
+                0.5 * np.array([rr[2, 1] - rr[1, 2], rr[0, 2] - rr[2, 0], rr[1, 0] - rr[0, 1]])
+            )
+        vecs_a = np.degrees(np.array(vecs))  # [T, 3]
+        direction = np.linalg.svd(vecs_a - vecs_a.mean(0), full_matrices=False)[2][0]
+        end_angle = vecs_a @ direction
     max_change = float(max(residuals))
     recovery = (max_change - float(residuals[-1])) / max(max_change, 0.02)
     if "v" in traj:

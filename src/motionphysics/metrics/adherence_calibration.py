@@ -138,12 +138,12 @@ def _splashes():
 
 
 def _oozes():
-    """Honey resting on the floor creeps out: its radius grows 60 % over the second,
-    still moving at the end (no fall)."""
+    """Honey resting on the floor creeps out into a puddle: its radius doubles over the
+    second at a steady 15 cm/s, still moving at the end (no fall)."""
     p = _ball(6) * [1, 1, 0.5]
     out = []
     for i in range(T):
-        s = 0.6 * (i * DT)  # linear creep
+        s = 1.0 * (i * DT)  # linear creep
         q = p * [1 + s, 1 + s, 1 / (1 + s) ** 2]
         q[:, 2] -= q[:, 2].min()
         out.append(q)
