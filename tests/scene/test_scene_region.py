@@ -285,3 +285,28 @@ def test_objects_cut_from_one_capture_share_its_static_scene(tmp_path):
     assert ss.splats.num == int(inside.sum())
     assert ss.static_collider is not None
     assert set(np.unique(ss.object_id.numpy())) == {0, 1}
+
+
+def test_particles_starting_inside_the_static_scene_are_said():
+    """A region whose particles start deep inside static splats gets one line saying the
+    first substep pushes them out (here: particles placed inside a thick static block)."""
+    from motionphysics.scene.prepare import _static_parts
+
+    g = np.linspace(-0.2, 0.2, 41)  # 1 cm apart: the splats' one-sigma boxes touch
+    pts = np.stack(np.meshgrid(g, g, g - 0.2, indexing="ij"), -1).reshape(-1, 3)
+    n = len(pts)
+    block = GaussianScene(  # a solid block of splats (a hollow shell would hold it inside)
+        means=torch.tensor(pts, dtype=torch.float32),
+        log_scales=torch.full((n, 3), float(np.log(0.01))),
+        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(n, 4).clone(),
+        logit_opacities=torch.full((n,), 4.0),
+        sh=torch.full((n, 1, 3), 0.5),
+    )
+    cfg = _cfg(region={"box": [[-0.1, -0.1, 0.0], [0.1, 0.1, 0.2]]})
+    dx = 0.02
+    lo = np.array([-0.3, -0.3, -0.45])
+    g = np.linspace(-0.05, 0.05, 6)
+    inside = np.stack(np.meshgrid(g, g, g - 0.2, indexing="ij"), -1).reshape(-1, 3)
+    _col, note = _static_parts(block, [cfg.scene], lo, dx, (31, 31, 36), inside, cfg.sim)
+    assert note is not None and "start more than a cell inside the static splats" in note
+    assert "\n" not in note

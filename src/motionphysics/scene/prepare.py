@@ -894,7 +894,16 @@ def _static_parts(static, cfgs, lo, dx, dims, particles, sim_cfg):
     collider = static_collider(
         static, threshold, lo, dx, dims, mode, friction, particles, sim_cfg.gravity
     )
-    return collider, support_note(collider, particles, dx, sim_cfg.gravity)
+    notes = [support_note(collider, particles, dx, sim_cfg.gravity)]
+    if collider is not None:
+        deep = int((collider.sample(particles) < -dx).sum())
+        if deep > 0.01 * len(particles):
+            notes.append(
+                f"static scene: {deep} of the {len(particles)} simulated particles start more "
+                "than a cell inside the static splats (scene.region cuts through them); the "
+                "first substep pushes them out onto its surface"
+            )
+    return collider, "; ".join(n for n in notes if n) or None
 
 
 def _grown_box(points, sim_cfg, forces, boundary_conditions, material_class, velocity, fallback):

@@ -15,7 +15,7 @@ Three pieces, used by :mod:`motionphysics.scene.prepare`:
   one line when the static scene under the simulated splats is too sparse to hold them.
 
 Resolution (what a person should know; docs/capture.md): the level set's cells are
-``h = dx / LEVELSET_REFINE``; a splat marks the cells its one-sigma box reaches, sigma
+``h = dx / 4`` (``LEVELSET_REFINE``; coarser on large grids); a splat marks the cells its one-sigma box reaches, sigma
 capped at one cell (``prepare.voxelise``), so the surface lies between the highest splat
 centre and ``2 h`` above it. Gaps up to ``CLOSE_GAP`` dx across z between static cells
 are closed, and near the simulated splats' lowest point the support under them (which
@@ -47,7 +47,10 @@ __all__ = [
 ]
 
 LEVELSET_REFINE = 4
-"""The level set's cells are ``dx / LEVELSET_REFINE`` (the simulation grid's spacing dx)."""
+"""The level set's cells are ``dx / LEVELSET_REFINE`` (the simulation grid's spacing dx),
+or coarser (``dx / 2``, ``dx``) when that would exceed :data:`LEVELSET_MAX_CELLS`."""
+LEVELSET_MAX_CELLS = 16_000_000
+"""Most level-set samples (a grid of 64 cells refines 4x; a grid of 128, 2x)."""
 MIN_COMPONENT_CELLS = 4
 """Occupied clusters of fewer level-set cells than this (26-connected) are floaters
 (isolated stray splats of a capture) and do not collide."""
@@ -186,7 +189,11 @@ def static_collider(
 
     from motionphysics.scene.prepare import voxelise
 
-    h = float(dx) / LEVELSET_REFINE
+    nodes = float(np.prod(np.asarray(grid_dims, dtype=np.float64)))
+    refine = LEVELSET_REFINE
+    while refine > 1 and nodes * refine**3 > LEVELSET_MAX_CELLS:
+        refine //= 2
+    h = float(dx) / refine
     lo = np.asarray(grid_lo, dtype=np.float64)
     hi = lo + (np.asarray(grid_dims) - 1) * float(dx)
     shape = tuple(int(math.ceil((b - a) / h - 1e-9)) + 1 for a, b in zip(lo, hi, strict=True))
@@ -204,7 +211,7 @@ def static_collider(
     occ = voxelise(near_splats, origin, h, shape)
     # a capture's surfaces are sparse (a table of scattered splats): gaps up to
     # CLOSE_GAP dx wide across gravity's axis (z) are bridged (a closing by a flat disk)
-    r = int(round(CLOSE_GAP * LEVELSET_REFINE / 2))
+    r = max(1, int(round(CLOSE_GAP * refine / 2)))
     disk = np.zeros((2 * r + 1, 2 * r + 1, 3), dtype=bool)
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disk[:, :, 1] = xx**2 + yy**2 <= r * r
@@ -225,8 +232,8 @@ def static_collider(
     gn = float(np.linalg.norm(g))
     if simulated is not None and gn > 0 and g[2] / gn < -0.99:
         pts = np.asarray(simulated, np.float64)
-        filled, fill_height = _fill_support(occ, origin, h, pts)
-        closed = _close_support(occ, origin, h, pts)
+        filled, fill_height = _fill_support(occ, origin, h, pts, refine)
+        closed = _close_support(occ, origin, h, pts, refine)
     outside = ndimage.distance_transform_edt(~occ) * h  # free samples: to the nearest occupied
     inside = ndimage.distance_transform_edt(occ) * h  # occupied: to the nearest free one
     # half a cell back: the surface is the occupied cells' boundary, between two samples
@@ -254,8 +261,8 @@ def static_collider(
 CLOSE_GAP = 2.0
 """Gaps between static cells up to this many dx wide (horizontally, one cell deep) are
 closed before the level set is built."""
-FILL_RING = 2 * LEVELSET_REFINE
-"""Width of the ring around the simulated footprint (level-set cells: 2 dx) whose static
+FILL_RING = 2.0
+"""Width of the ring around the simulated footprint (dx) whose static
 support sets the height of the unseen support under it."""
 FILL_MIN_RING = 0.1
 """The unseen support is filled only when at least this fraction of the ring's columns
@@ -267,7 +274,7 @@ FILL_PERCENTILE = 75.0
 a noisy surface, not its middle)."""
 
 
-def _fill_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray):
+def _fill_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray, refine: int):
     """Fill, in place, the support a capture cannot see: the static cells under the
     simulated splats where they stood (occluded by them in every view).
 
@@ -286,8 +293,8 @@ def _fill_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray
     foot = np.zeros((nx, ny), dtype=bool)
     foot[cell[:, 0], cell[:, 1]] = True
     foot = ndimage.binary_dilation(foot, iterations=1)
-    ring = ndimage.binary_dilation(foot, iterations=FILL_RING) & ~foot
-    k0, _k1, has, top = _support_band(occ, origin, h, pts)
+    ring = ndimage.binary_dilation(foot, iterations=int(FILL_RING * refine)) & ~foot
+    k0, _k1, has, top = _support_band(occ, origin, h, pts, refine)
     ring_has = has & ring
     if ring_has.sum() < max(FILL_MIN_COLUMNS, FILL_MIN_RING * ring.sum()):
         return 0, None
@@ -310,20 +317,22 @@ over the wood, most of them behind the object's own), and a body must not fall
 through the holes between them."""
 
 
-def _support_band(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray):
+def _support_band(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray, refine: int):
     """``(k0, k1, has [nx, ny], top [nx, ny])``: the band of levels (cells) from 2 dx below
     the lowest of ``pts`` to 2 cells above it, which columns hold a static cell in it, and
     the highest such cell of each column."""
     nz = occ.shape[2]
     k_low = int(np.clip(np.floor((pts[:, 2].min() - origin[2]) / h), 0, nz - 1))
-    k0 = max(0, k_low - 2 * LEVELSET_REFINE)
+    k0 = max(0, k_low - 2 * refine)
     k1 = min(nz, k_low + 2)
     band = occ[:, :, k0:k1]
     top = k0 + (k1 - k0 - 1) - np.argmax(band[:, :, ::-1], axis=2)
     return k0, k1, band.any(axis=2), top
 
 
-def _close_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray) -> int:
+def _close_support(
+    occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarray, refine: int
+) -> int:
     """Close, in place, the gaps of the static support near the simulated ``pts``' lowest
     point: in the band of :func:`_support_band`, the columns without a static cell that
     a closing by a disk of :data:`SUPPORT_GAP` dx (across gravity) covers are filled
@@ -331,10 +340,10 @@ def _close_support(occ: np.ndarray, origin: np.ndarray, h: float, pts: np.ndarra
     how many columns were filled."""
     from scipy import ndimage
 
-    k0, k1, has, top = _support_band(occ, origin, h, pts)
+    k0, k1, has, top = _support_band(occ, origin, h, pts, refine)
     if not has.any():
         return 0
-    r = int(round(SUPPORT_GAP * LEVELSET_REFINE / 2))
+    r = max(1, int(round(SUPPORT_GAP * refine / 2)))
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disk = xx**2 + yy**2 <= r * r
     pad = r + 1
@@ -386,7 +395,8 @@ def support_note(
     return (
         f"static scene: only {100 * frac:.0f} % of the ground under the simulated region is "
         f"static splats at dx = {dx:.3g} m (the static collider is a level set of the cells "
-        f"they occupy at {dx / LEVELSET_REFINE:.3g} m); the object may fall through it: a "
+        f"they occupy at {collider.h if collider is not None else dx:.3g} m); the object may "
+        "fall through it: a "
         "finer sim.grid, a lower scene.opacity_threshold or a surface_collider in "
         "boundary_conditions holds it"
     )
