@@ -125,6 +125,20 @@ def test_fit_of_two_objects_writes_each_objects_parameters(tmp_path, capsys):
     assert list(traj["object_names"]) == ["stiff", "soft"]
 
 
+def test_fit_of_two_objects_to_a_video(tmp_path):
+    ref = _reference(tmp_path, grid=10, particles=40, frames=4)
+    start = tmp_path / "start.yaml"
+    data = _config(1e6, 1e4, grid=10, particles=40, frames=4, iterations=1, global_search=False)
+    start.write_text(yaml.safe_dump(data))
+    out = tmp_path / "fit"
+    assert main(["--quiet", "fit", str(start), "--reference", str(ref.with_name("video.mp4")), "--out", str(out)]) == 0
+    p = json.loads((out / "params.json").read_text())
+    assert p["fit"]["loss"] == "video_match" and p["reference"]["kind"] == "video"
+    (h,) = p["history"]
+    assert h["loss"] > 0 and set(h["params"]) == {"stiff", "soft"}
+    assert h["grad_norm"]["stiff.E"] > 0 and h["grad_norm"]["soft.E"] > 0
+
+
 def test_fit_refuses_a_parameter_an_object_does_not_have(tmp_path, capsys):
     ref = _reference(tmp_path, grid=10, particles=40, frames=4)
     bad = tmp_path / "bad.yaml"
