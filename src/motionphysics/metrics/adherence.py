@@ -10,10 +10,12 @@ of a shape change is undone, how far and how fast it spreads, whether it oscilla
 
 1. **Cues** (:data:`CUES`): word patterns (stems, so "bounce", "bounces", "bouncing",
    "bouncy" all match) for motions (bounce / rebound, splash / spread / flow, keep
-   shape / rigid, wobble / jiggle, squash, flatten, stay / permanent, collapse, heap /
-   pile, break apart, ooze / slowly, fall / drop, bend, roll / slide, spin, rest,
-   deform) and, with half weight, for materials that imply a motion (rubber ->
-   rebound, water -> spread, sand -> heap, clay -> stays deformed, honey -> slow ...).
+   shape / rigid, wobble / jiggle, vibrate (a small oscillation), squash, flatten,
+   stay / permanent, collapse, crumble / fall apart, heap / pile, break apart, ooze /
+   creep, slowly, gently (slow and small), fall / drop / land, bend, roll / slide,
+   spin, rest, deform) and, with half weight, for materials that imply a motion
+   (rubber -> rebound, water -> spread, sand -> heap, clay -> stays deformed, honey ->
+   slow ...). A cue that completes another verb ("crumbles into a heap") weighs half.
    A negation up to three words before a cue ("does not bounce", "without spreading")
    flips it. A bounce is graded by the words around it: "barely", "a little",
    "feebly" ask for a small rebound (:data:`WEAK`), "high", "very", "right back" for a
@@ -40,11 +42,12 @@ of a shape change is undone, how far and how fast it spreads, whether it oscilla
 
 The thresholds are physical judgements, documented beside each behaviour (e.g. a
 bounce is a centroid rise of at least 15 % of the fall, a squash a loss of at least
-10 % of the height at some instant); they were checked, not fitted, against labelled
-trajectories: hand-made ones per motion word (:mod:`.adherence_calibration`) and the
-motion prior's simulated clips, whose group is their measured motion (BENCHMARKS.md,
-"Motion adherence: words x behaviours"). This module must not read files or run
-simulations.
+10 % of the height at some instant). No optimiser fitted them, but they and the word
+lists were adjusted while the confusion matrices of labelled trajectories were
+watched: hand-made ones per motion word (:mod:`.adherence_calibration`) and the motion
+prior's simulated clips, whose group is their measured motion (the training clips for
+adjusting, the held-out clips for the published check: BENCHMARKS.md, "Motion
+adherence: words x behaviours"). This module must not read files or run simulations.
 """
 
 from __future__ import annotations
