@@ -99,6 +99,7 @@ class PerturbedRenderer:
 
         import torch
 
+        from motionphysics.assembly_scene import static_splats_view
         from motionphysics.render.deform import deform_splats
         from motionphysics.render.rasterize import rasterize
 
@@ -123,6 +124,12 @@ class PerturbedRenderer:
                 covs = torch.cat([covs, b.ground["covs"]])
                 colors = torch.cat([colors.clamp(0, 1), b.ground["colors"]])
                 opac = torch.cat([opac, b.ground["opacities"]])
+            static = static_splats_view(scene, b.camera, means)  # scene.region: never perturbed
+            if static is not None:
+                means = torch.cat([means, static["means"]])
+                covs = torch.cat([covs, static["covs"]])
+                colors = torch.cat([colors, static["colors"]])
+                opac = torch.cat([opac, static["opacities"]])
             frames.append(rasterize(means, covs, colors, opac, b.camera, b.background).rgb)
         return torch.stack(frames)
 
