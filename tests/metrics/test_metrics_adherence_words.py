@@ -128,3 +128,33 @@ def test_a_contradicted_claim_sinks_the_score():
     by = {r["name"]: r["score"] for r in out["behaviours"]}
     assert by["spread"] > 0.9 and by["fast"] < 0.2
     assert out["score"] < 0.4 < out["score_mean"]
+
+
+@pytest.mark.parametrize(
+    "shape",
+    ["one frame", "one particle", "static", "no gravity", "flat sheet"],
+)
+def test_degenerate_trajectories_are_scored_not_crashed(shape):
+    rng = np.random.default_rng(1)
+    p = rng.random((50, 3))
+    t = np.arange(10) * 0.04
+    traj = {
+        "one frame": {"x": p[None], "t": np.array([0.0])},
+        "one particle": {"x": rng.random((10, 1, 3)), "t": t},
+        "static": {"x": np.repeat(p[None], 10, 0), "t": t},
+        "no gravity": {
+            "x": np.stack([p + [0.01 * i, 0, 0] for i in range(10)]),
+            "t": t,
+            "gravity": np.zeros(3),
+        },
+        "flat sheet": {"x": np.repeat((p * [1, 1, 0])[None], 10, 0), "t": t},
+    }[shape]
+    out = motion_adherence("A ball bounces and wobbles.", traj)
+    assert 0.0 <= out["score"] <= 1.0 and out["explanations"]
+
+
+def test_a_prompt_in_another_language_is_not_scored_and_says_why():
+    traj = cal.WORDS["bounces high"][0]()
+    for prompt in ("果冻掉在地上弹了几下", "Ein Gummiball springt hoch"):
+        out = motion_adherence(prompt, traj, floor=0.0)
+        assert out["score"] is None and "no motion words" in out["reason"]

@@ -793,7 +793,7 @@ def measure(
     sv = np.linalg.svd(p0 * np.sqrt(m / m.sum())[:, None], compute_uv=False)
     ends = np.array_split(order, 6)
     end_angle = None
-    if sv[0] > 2.0 * sv[1] and ends[0].size >= 4 and ends[-1].size >= 4:
+    if len(sv) > 1 and sv[0] > 2.0 * sv[1] and ends[0].size >= 4 and ends[-1].size >= 4:
         # SIGNED: the relative rotation's vector (sin(angle) times its axis, [deg]) along
         # its direction of largest variance, so a bend up and a bend down differ
         vecs = []
