@@ -182,3 +182,35 @@ def test_the_viewer_draws_the_static_scene_in_every_frame(run_dir):
         assert frame.means.shape[0] == scene.num
         static_means = scene.means[torch_index(~sim)].numpy()
         assert np.array_equal(frame.means[int(sim.sum()) :], static_means)
+
+
+def test_a_tilted_up_axis_is_said_with_the_vector_that_levels_the_table():
+    """``up: y`` (the axis Brush's header names) leaves this capture's table 138 degrees
+    from level; the run says so and names the up vector that levels it (the table's
+    normal, within 5 degrees of the one fitted for this test)."""
+    import re
+
+    from motionphysics.config import RunConfig
+    from motionphysics.scene import load_scene
+    from motionphysics.scene.prepare import prepare, transform_scene
+
+    scene = load_scene(str(CAPTURE))
+    placed, _ = transform_scene(scene, 0.04, [], (0.0, 0.0, 0.0), "y")
+    m = placed.means.numpy()
+    box = [np.percentile(m, 30, axis=0).tolist(), np.percentile(m, 70, axis=0).tolist()]
+    cfg = RunConfig.model_validate(
+        {
+            "scene": {"source": str(CAPTURE), "up": "y", "scale": 0.04, "region": {"box": box}},
+            "sim": {"grid": 24, "frames": 4},
+        }
+    )
+    note = prepare(scene, cfg.scene, cfg.sim, [], []).static_note
+    got = re.search(r"scene\.up: \[([-0-9., ]+)\]", note or "")
+    assert got, note
+    u = np.array([float(v) for v in got.group(1).split(",")])
+    cos = float(u @ np.array(UP)) / np.linalg.norm(u) / np.linalg.norm(UP)
+    assert np.degrees(np.arccos(min(cos, 1.0))) < 5.0
+    # with that vector, nothing is said
+    right = RunConfig.model_validate({**CONFIG, "sim": {"grid": 24, "frames": 4}})
+    note = prepare(scene, right.scene, right.sim, [], []).static_note
+    assert note is None or "scene.up" not in note

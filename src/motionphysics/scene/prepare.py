@@ -825,7 +825,9 @@ def prepare(
         splats, scene_cfg, lo, dx
     )
     offset = vis - particles[parent]
-    collider, note_static = _static_parts(static, [scene_cfg], lo, dx, dims, particles, sim_cfg)
+    collider, note_static = _static_parts(
+        static, [scene_cfg], lo, dx, dims, particles, sim_cfg, source_to_world=m
+    )
 
     return SimScene(
         splats=splats,
@@ -871,14 +873,14 @@ def _static_floor(static, cfgs, points, sim_cfg) -> list[dict]:
     ]
 
 
-def _static_parts(static, cfgs, lo, dx, dims, particles, sim_cfg):
+def _static_parts(static, cfgs, lo, dx, dims, particles, sim_cfg, source_to_world=None):
     """``(collider, note)`` of the static scene ``static`` (None: no region) on the grid
     (node 0 at ``lo``, spacing ``dx``, ``dims`` nodes): the level set of
     :func:`motionphysics.scene.region.static_collider` under the collider keys of the
     configs with a region (which must agree), and the one-line support note."""
     if static is None:
         return None, None
-    from motionphysics.scene.region import static_collider, support_note
+    from motionphysics.scene.region import static_collider, support_note, tilt_note
 
     with_region = [c for c in cfgs if getattr(c, "region", None) is not None]
     modes = {(c.static_collider, float(c.static_friction)) for c in with_region}
@@ -888,13 +890,14 @@ def _static_parts(static, cfgs, lo, dx, dims, particles, sim_cfg):
             "static_friction (one static scene holds them all); give the same values"
         )
     mode, friction = modes.pop()
+    tilt = None if source_to_world is None else tilt_note(static, particles, source_to_world)
     if mode == "off":
-        return None, None
+        return None, tilt
     threshold = min(float(c.opacity_threshold) for c in with_region)
     collider = static_collider(
         static, threshold, lo, dx, dims, mode, friction, particles, sim_cfg.gravity
     )
-    notes = [support_note(collider, particles, dx, sim_cfg.gravity)]
+    notes = [support_note(collider, particles, dx, sim_cfg.gravity), tilt]
     if collider is not None:
         deep = int((collider.sample(particles) < -dx).sum())
         if deep > 0.01 * len(particles):
@@ -1072,6 +1075,7 @@ def prepare_objects(
                     dims,
                     np.concatenate(particles),
                     sim_cfg,
+                    picked[0][1],
                 ),
                 strict=True,
             )

@@ -400,3 +400,58 @@ def support_note(
         "finer sim.grid, a lower scene.opacity_threshold or a surface_collider in "
         "boundary_conditions holds it"
     )
+
+
+TILT_WARN_DEG = 20.0
+"""A dominant plane of static splats around the region tilted more than this from the
+horizontal is said (with the ``scene.up`` that levels it)."""
+
+
+def tilt_note(static, points: np.ndarray, source_to_world: np.ndarray, seed: int = 0) -> str | None:
+    """One line when the static splats around the simulated ``points`` [P, 3] m lie on a
+    dominant plane (a floor, a table: at least 30 % of them within 2 % of the region's
+    size of it, found by RANSAC) tilted more than :data:`TILT_WARN_DEG` from the world's
+    horizontal, with the ``scene.up`` vector (in the capture's frame, through
+    ``source_to_world`` [4, 4]) that would level it. None otherwise."""
+    p = np.asarray(points, dtype=np.float64)
+    lo, hi = p.min(0), p.max(0)
+    ext = float((hi - lo).max())
+    if not ext > 0:
+        return None
+    s = static.means.double().numpy()
+    near = s[((s >= lo - ext) & (s <= hi + ext)).all(axis=1)]
+    if len(near) < 50:
+        return None
+    rng = np.random.default_rng(seed)
+    tol = 0.02 * ext
+    tri = rng.integers(0, len(near), size=(400, 3))
+    a, b, c = near[tri[:, 0]], near[tri[:, 1]], near[tri[:, 2]]
+    n = np.cross(b - a, c - a)
+    ln = np.linalg.norm(n, axis=1)
+    ok = ln > 1e-12 * ext * ext
+    if not ok.any():
+        return None
+    n, a = n[ok] / ln[ok, None], a[ok]
+    counts = np.array([(np.abs((near - a0) @ n0) < tol).sum() for a0, n0 in zip(a, n, strict=True)])
+    best = int(np.argmax(counts))
+    inl = near[np.abs((near - a[best]) @ n[best]) < tol]
+    if len(inl) < 0.3 * len(near):
+        return None
+    centre = inl.mean(0)
+    normal = np.linalg.svd(inl - centre, full_matrices=False)[2][2]
+    if float((p.mean(0) - centre) @ normal) < 0:
+        normal = -normal  # towards the simulated splats: the support's up
+    angle = float(np.degrees(np.arccos(np.clip(normal[2], -1.0, 1.0))))
+    if angle <= TILT_WARN_DEG:
+        return None
+    m = np.asarray(source_to_world, dtype=np.float64)[:3, :3]
+    r = m / np.cbrt(np.linalg.det(m))
+    u = r.T @ normal
+    # the up that levels it replaces the config's: the rest of the rotation stays
+    vec = ", ".join(f"{v:.3f}" for v in u)
+    return (
+        f"scene.up: {100 * len(inl) / len(near):.0f} % of the static splats around the "
+        f"region lie on a plane whose normal is {angle:.0f} deg from the world's up (a floor "
+        f"or a table, tilted?); if it holds the object, scene.up: [{vec}] (that normal in "
+        "the capture's frame, with rotate: []) levels it"
+    )
