@@ -182,10 +182,15 @@ def transform_scene(
     t = np.asarray(translate, dtype=np.float64)
     dtype = scene.means.dtype
     rt = torch.from_numpy(r)
-    means = scene.means.double() * float(scale) @ rt.T + torch.from_numpy(t)
+    if np.array_equal(r, np.eye(3)) and float(scale) == 1.0 and not t.any():
+        # the identity keeps every bit (a signed zero included): a static scene of
+        # scene.region is then the input file's splats exactly
+        means = scene.means.clone()
+    else:
+        means = (scene.means.double() * float(scale) @ rt.T + torch.from_numpy(t)).to(dtype)
     out = GaussianScene(
-        means=means.to(dtype),
-        log_scales=scene.log_scales + math.log(scale),
+        means=means,
+        log_scales=scene.log_scales.clone() if scale == 1.0 else scene.log_scales + math.log(scale),
         quats=scene.quats.clone(),
         logit_opacities=scene.logit_opacities.clone(),
         sh=scene.sh.clone(),
