@@ -91,6 +91,7 @@ def test_fit_of_two_objects_writes_each_objects_parameters(tmp_path, capsys):
     assert main(["fit", str(start), "--reference", str(ref), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "object:    stiff" in text and "object:    soft" in text
+    assert "start 2.000e+06" in text and "start 2000" in text  # each object's start
     p = json.loads((out / "params.json").read_text())
     assert p["fit"]["optimised"] == ["stiff.E", "soft.E"]
     assert p["fit"]["start"]["stiff"]["E"] == pytest.approx(2.0e6)

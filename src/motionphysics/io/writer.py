@@ -861,10 +861,15 @@ def format_value(v: Any) -> str:
     return f"{v:.4g}" if (a == 0 or 1e-3 <= a < 1e5) else f"{v:.3e}"
 
 
-def _objects_summary(objects: list[dict[str, Any]]) -> list[str]:
-    """Summary lines of a scene of several objects: one line per object, then its values."""
+def _objects_summary(
+    objects: list[dict[str, Any]], initial: dict[str, Any] | None = None
+) -> list[str]:
+    """Summary lines of a scene of several objects: one line per object, then its values
+    (``start X`` where an optimisation moved one: params.json ``initial.objects``)."""
     lines = []
     for o in objects:
+        start = (initial or {}).get(o.get("name")) or {}
+        start = {"density": start.get("density"), **(start.get("params") or {})}
         prov = o.get("provenance") or {}
         lines.append(
             f"object:    {o.get('name')}: {o.get('class')} (from {prov.get('backend', '?')}), "
@@ -873,7 +878,10 @@ def _objects_summary(objects: list[dict[str, Any]]) -> list[str]:
         sources = prov.get("sources") or {}
         for name, value in {"density": o.get("density"), **(o.get("params") or {})}.items():
             src = sources.get(name)
-            lines.append(f"  {name:<10} {format_value(value):>12}" + (f"  [{src}]" if src else ""))
+            line = f"  {name:<10} {format_value(value):>12}"
+            if start.get(name) is not None and start[name] != value:
+                line += f"  start {format_value(start[name])}"
+            lines.append(line + (f"  [{src}]" if src else ""))
     return lines
 
 
@@ -884,7 +892,7 @@ def summary_text(result: RunResult) -> str:
     prov = p.get("provenance") or {}
     est = prov.get("estimate") or {}
     if p.get("objects"):
-        lines += _objects_summary(p["objects"])
+        lines += _objects_summary(p["objects"], (p.get("initial") or {}).get("objects"))
         prov = {}  # each object's provenance is in its own lines
     else:
         how = f"from {prov.get('backend', '?')}"
