@@ -84,8 +84,9 @@ class SceneConfig(_Strict):
     ``crop``, which discards the splats outside it."""
     static_collider: Literal["frictional", "sticky", "slip", "off"] = "frictional"
     """With ``region``: how the static splats near the simulated region act on it: a
-    fixed collider (a level set of the cells they occupy at half the grid spacing) with
-    Coulomb friction ``static_friction``, sticky (v = 0), slip, or ``off`` (drawn only)."""
+    fixed collider (a level set of the cells they occupy, at a quarter of the grid
+    spacing) with Coulomb friction ``static_friction``, sticky (v = 0), slip, or ``off``
+    (drawn only); see docs/capture.md."""
     static_friction: float = Field(0.3, ge=0)
     """Coulomb coefficient of the ``frictional`` static collider."""
     fill: bool = True

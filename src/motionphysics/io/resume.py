@@ -138,9 +138,10 @@ def _plain_config(cfg) -> dict[str, Any]:
 def open_keys(cfg) -> frozenset[str]:
     """Keys of ``cfg`` that hold a default the run replaces by what it resolved:
     ``camera.radius`` / ``camera.look_at`` when neither is set and there is no
-    ``cameras_json`` (auto-framing, :func:`motionphysics.assembly.resolve_camera`)."""
+    capture camera file (``camera.from`` / ``cameras_json``; auto-framing,
+    :func:`motionphysics.assembly.resolve_camera`)."""
     cam = cfg.camera
-    if getattr(cam, "cameras_json", None) or {"radius", "look_at"} & cam.model_fields_set:
+    if getattr(cam, "camera_file", None) or {"radius", "look_at"} & cam.model_fields_set:
         return frozenset()
     return frozenset({"camera.radius", "camera.look_at"})
 
