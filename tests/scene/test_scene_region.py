@@ -311,3 +311,40 @@ def test_particles_starting_inside_the_static_scene_are_said():
     _col, note = _static_parts(block, [cfg.scene], lo, dx, (31, 31, 36), inside, cfg.sim)
     assert note is not None and "start more than a cell inside the static splats" in note
     assert "\n" not in note
+
+
+def test_static_collider_modes_hold_a_sliding_ball_differently(tmp_path):
+    """A ball thrown sideways onto the slab: sticky stops it, slip lets it run further
+    than frictional; none lets it through the table."""
+    from motionphysics.assembly import assemble
+    from motionphysics.scene.ply import write_ply
+
+    src = tmp_path / "table.ply"
+    write_ply(_slab_and_ball(), src)
+    runs = {}
+    for mode in ("sticky", "frictional", "slip"):
+        cfg = RunConfig.model_validate(
+            {
+                "scene": {
+                    "source": str(src),
+                    "region": {"sphere": [[0.0, 0.0, 0.105], 0.12]},
+                    "max_particles": 600,
+                    "static_collider": mode,
+                    **({"static_friction": 0.5} if mode == "frictional" else {}),
+                },
+                "material": {"class": "elastic", "density": 1000.0, "E": 1.0e5, "nu": 0.3},
+                "sim": {
+                    "grid": 16,
+                    "frames": 6,
+                    "frame_dt": 0.02,
+                    "substeps": 30,
+                    "initial_velocity": [0.8, 0.0, -0.3],
+                },
+                "camera": {"width": 16, "height": 16},
+            }
+        )
+        parts = assemble(cfg, reference_image=False)
+        xs, _Fs, _vs, _n = parts.simulate()
+        assert xs[:, :, 2].min() > -0.1 * parts.sim_scene.dx, mode
+        runs[mode] = float(xs[-1][:, 0].mean() - xs[0][:, 0].mean())
+    assert runs["sticky"] < runs["frictional"] < runs["slip"], runs
