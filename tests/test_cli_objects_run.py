@@ -145,6 +145,14 @@ def test_run_frames_prior_sees_the_whole_scene_with_the_whole_prompt(tmp_path):
     assert p["history"][0]["loss"] is not None
 
 
+def test_an_object_left_as_given_needs_no_phrase(tmp_path):
+    p, _ = _run(tmp_path, _config("A rubber ball bounces high.", params={"ball": ["E"]}))
+    opt = p["optimise"]
+    assert opt["object_prompts"] == {"ball": "A rubber ball bounces high"}
+    assert opt["optimised"] == ["ball.E"]
+    assert {o["name"]: o["params"]["E"] for o in p["objects"]}["cube"] == 1.0e5
+
+
 def test_an_object_no_clause_names_is_a_one_line_error(tmp_path, capsys):
     path = tmp_path / "cfg.yaml"
     path.write_text(yaml.safe_dump(_config("A rubber ball bounces high.")))

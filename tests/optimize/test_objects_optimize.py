@@ -97,6 +97,10 @@ def test_object_prompts_take_the_config_key_first_and_refuse_an_unnamed_object()
     with pytest.raises(UserInputError, match=r"objects\[1\] \(b\).*objects\[1\]\.prompt") as err:
         object_prompts(config_from_dict(data), ["a", "b"])
     assert "\n" not in str(err.value)
+    # an object whose parameters are not optimised needs no phrase (it is not observed)
+    assert object_prompts(config_from_dict(data), ["a", "b"], {"a"}) == {
+        "a": "The ball a bounces high"
+    }
 
 
 # --- which parameters ----------------------------------------------------------------------

@@ -20,7 +20,9 @@
 - A prior that observes states (``--prior motion``) sees each object apart:
   :class:`PerObjectLoss` gives every object the configured losses built with its own
   phrase (:func:`object_prompt`) and a view of the prior that knows that object's rest
-  state, observes that object's particles only, and sums the objects' losses. A prior
+  state, observes that object's particles only, and sums the objects' losses (an object
+  whose parameters are not optimised is observed when the prompt has a phrase for it:
+  its motion depends on the others' through contact). A prior
   that observes frames sees the whole render with the whole prompt (every object is in
   the picture and the prompt describes them all).
 
@@ -318,14 +320,17 @@ def object_prompt(prompt: str, name: str, others: tuple[str, ...] = ()) -> str |
     return None
 
 
-def object_prompts(cfg, names: list[str]) -> dict[str, str]:
+def object_prompts(cfg, names: list[str], required: set[str] | None = None) -> dict[str, str]:
     """Each object's phrase for a prior that observes each object: ``objects[i].prompt``,
-    else :func:`object_prompt` of the run's prompt; one error line for an object that
-    has neither."""
+    else :func:`object_prompt` of the run's prompt; one error line for an object of
+    ``required`` (default: all) that has neither, the others are left out."""
     given = {o.name: o.prompt for o in (cfg.objects or []) if getattr(o, "prompt", None)}
+    required = set(names) if required is None else set(required)
     out = {}
     for i, n in enumerate(names):
         phrase = given.get(n) or object_prompt(cfg.prompt, n, tuple(names))
+        if phrase is None and n not in required:
+            continue
         if phrase is None:
             raise UserInputError(
                 f"objects[{i}] ({n}): the prompt has no clause that names {n!r}, so the "

@@ -360,10 +360,11 @@ def _side_by_side(problem, start, final) -> dict[str, dict[str, Any]]:
     return out
 
 
-def _per_object_losses(parts, prior, bctx):
+def _per_object_losses(parts, prior, bctx, optimised: set[str]):
     """Several objects and a prior that observes states: the configured losses built
-    once per object, each with its phrase (:func:`~.objects.object_prompts`) and a view
-    of the prior that knows that object's rest state, summed by
+    once per object, each with its phrase (:func:`~.objects.object_prompts`; required
+    for the ``optimised`` objects, the others are observed when they have one) and a
+    view of the prior that knows that object's rest state, summed by
     :class:`~.objects.PerObjectLoss`. Returns (the loss, ``{object: phrase}``)."""
     from dataclasses import replace
 
@@ -375,9 +376,11 @@ def _per_object_losses(parts, prior, bctx):
     )
 
     names = [o.name for o in parts.objects]
-    phrases = object_prompts(parts.cfg, names)
+    phrases = object_prompts(parts.cfg, names, optimised)
     per = []
     for name, idx in zip(names, object_indices(parts), strict=True):
+        if name not in phrases:
+            continue
         view = object_prior(prior, phrases[name], scene_context(parts, idx))
         ctx = replace(bctx, prompt=phrases[name], prior=view, num_particles=int(idx.numel()))
         per.append((name, idx, build_losses(parts.cfg, ctx)))
@@ -420,16 +423,18 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     )
     several = parts.objects is not None
     phrases = None
+    if several:
+        from motionphysics.optimize.objects import build_objects_problem, objects_optimised
+
+        optimised = objects_optimised(cfg, parts.objects)
     if several and prior is not None and getattr(prior, "observes", "frames") == "states":
         # each object's own phrase and particles (optimize.objects)
-        loss, phrases = _per_object_losses(parts, prior, bctx)
+        loss, phrases = _per_object_losses(parts, prior, bctx, set(optimised))
         weighted = loss.parts[0][2]
     else:
         loss = weighted = build_losses(cfg, bctx)
     if several:
-        from motionphysics.optimize.objects import build_objects_problem, objects_optimised
-
-        problem = build_objects_problem(parts, loss, objects_optimised(cfg, parts.objects))
+        problem = build_objects_problem(parts, loss, optimised)
     else:
         problem = build_problem(parts, loss)
     stateful = [loss] if phrases is not None else [lo for _, _, lo in loss.terms]
