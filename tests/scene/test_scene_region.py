@@ -348,3 +348,46 @@ def test_static_collider_modes_hold_a_sliding_ball_differently(tmp_path):
         assert xs[:, :, 2].min() > -0.1 * parts.sim_scene.dx, mode
         runs[mode] = float(xs[-1][:, 0].mean() - xs[0][:, 0].mean())
     assert runs["sticky"] < runs["frictional"] < runs["slip"], runs
+
+
+def test_a_capture_camera_file_frames_the_scene_after_its_transform(tmp_path):
+    """camera.from: a nerfstudio transforms.json whose camera looks at the ball in the
+    capture's frame still sees it at the image centre once the scene is scaled, turned
+    (up: y) and moved: the camera follows the transform."""
+    from motionphysics.assembly import assemble
+    from motionphysics.scene.ply import write_ply
+
+    # the capture, y-up: the ball at (0, 0.105, 0) of the capture's frame
+    scene = _slab_and_ball()
+    r = torch.from_numpy(up_rotation("y").T).float()  # z-up -> the capture's y-up
+    scene.means = scene.means @ r.T
+    src = tmp_path / "capture.ply"
+    write_ply(scene, src)
+    # a camera 1 m in front of the ball (capture +z), looking at it: OpenGL axes
+    c2w = np.eye(4)
+    c2w[:3, 3] = [0.0, 0.105, 1.0]
+    (tmp_path / "transforms.json").write_text(
+        json.dumps({"w": 40, "h": 40, "fl_x": 60.0, "frames": [{"transform_matrix": c2w.tolist()}]})
+    )
+    cfg = RunConfig.model_validate(
+        {
+            "scene": {
+                "source": str(src),
+                "up": "y",
+                "scale": 2.0,
+                "translate": [0.3, -0.2, 0.1],
+                "region": {"sphere": [[0.3, -0.2, 0.1 + 0.21], 0.24]},
+                "max_particles": 600,
+            },
+            "material": {"class": "elastic", "density": 1000.0, "E": 1.0e5, "nu": 0.3},
+            "sim": {"grid": 16, "frames": 2},
+            "camera": {"from": str(tmp_path / "transforms.json"), "width": 40, "height": 40},
+        }
+    )
+    parts = assemble(cfg)
+    assert parts.camera_note == {"framing": "config"}
+    img = parts.reference_image
+    centre = img[18:22, 18:22].reshape(-1, 3).astype(int)
+    assert (centre.sum(axis=1) < 3 * 240).all()  # the ball, not the white background
+    corner = img[:3, :3].reshape(-1, 3).astype(int)
+    assert (corner.sum(axis=1) > 3 * 240).all()  # nothing there: the camera sees the ball only
