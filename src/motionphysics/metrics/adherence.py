@@ -175,7 +175,8 @@ BEHAVIOURS: dict[str, Behaviour] = {
             0.4,
             0.12,
             "how much of the largest shape change is undone by the end: (max - final) /"
-            " max(max, 0.02)",
+            " max(max, 0.02) of the RMS residual; 1 when the shape never visibly changed (its"
+            " most moved part under 2 % of L)",
         ),
         Behaviour(
             "flatten",
@@ -247,11 +248,12 @@ BEHAVIOURS: dict[str, Behaviour] = {
         ),
         Behaviour(
             "creeping",
-            "final_speed",
-            0.008,
-            0.003,
-            "the same final speed: still creeping at the end, however slowly (an ooze or a"
-            " slump that has not stopped; LOW: come to rest)",
+            "late_spread",
+            0.01,
+            0.004,
+            "growth of the RMS horizontal radius over the last quarter of the clip, in L:"
+            " still spreading at the end, however slowly (an ooze or a slump that has not"
+            " stopped; LOW: its shape has come to rest, whatever small vibration is left)",
         ),
         Behaviour(
             "travel",
@@ -300,7 +302,14 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
     (
         "splash",
         r"splash\w*|splatter\w*|spatter\w*|burst\w*",
-        [("spread", _H, 1.0), ("heap", _L, 0.5), ("rebound", _L, 0.5), ("fast", _H, 0.5)],
+        # a splash is fast and a liquid goes on spreading thin; grains come to rest
+        [
+            ("spread", _H, 1.0),
+            ("heap", _L, 0.5),
+            ("rebound", _L, 0.5),
+            ("fast", _H, 0.5),
+            ("creeping", _H, 0.5),
+        ],
     ),
     (
         "spread",
@@ -364,7 +373,7 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
     ),
     (
         "recover",
-        r"recover\w*|returns? to (?:its|their) (?:original )?shape|springs? back|bounces? back"
+        r"recover\w*|returns? to (?:its|their) (?:original )?shape|springs? back"
         r"|regains? (?:its|their) shape|restor\w*",
         [("recovery", _H, 1.0)],
     ),
@@ -808,7 +817,11 @@ def measure(
         direction = np.linalg.svd(vecs_a - vecs_a.mean(0), full_matrices=False)[2][0]
         end_angle = vecs_a @ direction
     max_change = float(max(residuals))
-    recovery = (max_change - float(residuals[-1])) / max(max_change, 0.02)
+    # nothing visible to undo (under 2 % of L at its largest place) counts as recovered
+    tip_max = float(max(tips))
+    recovery = (
+        (max_change - float(residuals[-1])) / max(max_change, 0.02) if tip_max >= 0.02 else 1.0
+    )
     if "v" in traj:
         v = np.asarray(traj["v"], dtype=np.float64)[:, ::stride]
     else:
@@ -886,6 +899,7 @@ def measure(
         "pace": pace,
         "contact_time_s": None if contact is None else float(t[contact] - t[0]),
         "final_speed": float(speed[-tail:].mean()),
+        "late_spread": float(radii[-1] - radii[max(0, T - 1 - max(1, T // 4))]) / L,
         "travel": float(np.linalg.norm(horiz_travel)) / L,
         "rotation_deg": rot,
         "max_displacement": float(np.linalg.norm(x - x[:1], axis=-1).max()) / L,
@@ -936,6 +950,7 @@ _SAY: dict[str, Callable[[dict[str, Any]], str]] = {
     ),
     "pace": lambda m: f"pace after contact {m['pace']:.2g} sqrt(gL)",
     "final_speed": lambda m: f"final speed {m['final_speed']:.2g} sqrt(gL)",
+    "late_spread": lambda m: f"spread {m['late_spread']:+.2g} L in the last quarter",
     "travel": lambda m: f"travelled {m['travel']:.2g} L",
     "rotation_deg": lambda m: f"turned {m['rotation_deg']:.0f} deg",
     "max_displacement": lambda m: f"largest displacement {m['max_displacement']:.2g} L",
