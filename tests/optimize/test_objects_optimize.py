@@ -350,3 +350,63 @@ def test_an_interrupted_optimisation_of_two_objects_resumes_to_the_same_paramete
     for k in ("a.E", "b.E"):
         assert float(resumed.theta[k]) == float(whole.theta[k])
     assert resumed.params == whole.params and set(whole.params) == {"a", "b"}
+
+
+def test_each_objects_motion_features_have_the_gradient_of_central_differences(two_balls):
+    """The states prior's observation of each object (its particles, its rest state)
+    through the simulation of both: d(sum_k w_k . z_k)/d theta against differences."""
+    import copy
+
+    from motionphysics.optimize.refine import scene_context
+    from motionphysics.priors.motion import MotionDenoiser, MotionPrior, net_config
+    from motionphysics.priors.motion_features import NUM_FEATURES
+
+    parts = two_balls
+    torch.manual_seed(0)
+    prior = MotionPrior(
+        MotionDenoiser(**net_config("test")),
+        mean=torch.zeros(NUM_FEATURES),
+        std=torch.ones(NUM_FEATURES),
+    )
+    idx = object_indices(parts)
+    views = []
+    for i in idx:
+        view = copy.copy(prior)
+        view.set_scene(scene_context(parts, i))
+        views.append(view)
+    rng = np.random.default_rng(3)
+    weights = [torch.tensor(rng.normal(size=(1, 16, NUM_FEATURES, 1, 1))) for _ in idx]
+
+    class Features(Loss):
+        needs_states = True
+
+        def __call__(self, pred, ctx):
+            total = 0.0
+            for view, i, w in zip(views, idx, weights, strict=True):
+                z = view.encode_states(
+                    pred.xs[:, i], pred.Fs[:, i], tuple(pred.frame_indices)
+                )
+                total = total + (z.double() * w).sum()
+            return total
+
+    loss = Features()
+    problem = build_objects_problem(parts, loss, {"a": ["E"], "b": ["E"]})
+    ctx = LossContext(iteration=0, num_frames=3)
+
+    def value(theta):
+        return loss(problem.forward(theta, (1, 2), "full", 1, {}), ctx)
+
+    theta = problem.initial_theta()
+    value(theta).backward()
+    h = 3e-3
+    for name in ("a.E", "b.E"):
+        vals = []
+        for sgn in (1, -1):
+            th = {k: v.detach().clone() for k, v in theta.items()}
+            th[name] = th[name] + sgn * h
+            with torch.no_grad():
+                vals.append(float(value(th)))
+        fd = (vals[0] - vals[1]) / (2 * h)
+        got = float(theta[name].grad)
+        assert abs(fd) > 1e-6
+        assert got == pytest.approx(fd, rel=0.05, abs=1e-3 * abs(fd)), (name, got, fd)
