@@ -355,12 +355,14 @@ CUES: list[tuple[str, str, list[tuple[str, int, float]]]] = [
         "squash",
         r"squash\w*|squish\w*|(?:pressed|pushed|squeezed|crushed) flat|crush\w*|compress\w*"
         r"|smash\w*|dent\w*",
-        [("squash", _H, 1.0), ("spread", _L, 0.5), ("intact", _H, 0.5)],
+        # (a squash bulges sideways: no claim on the spread; a splash is not a squash by
+        # its fall into a sheet, see "flat")
+        [("squash", _H, 1.0), ("intact", _H, 0.5)],
     ),
     (
         "flat",
         r"flatten\w*|pancake\w*|flat\b",
-        [("flatten", _H, 1.0)],
+        [("flatten", _H, 1.0), ("tall", _L, 0.5)],
     ),
     (
         "stay",
