@@ -50,7 +50,7 @@ def test_simulated_held_out_clips_are_diagonal_dominant_over_the_motion_groups()
     M, names, counts = cal.clip_confusion(str(HELD_OUT))
     rows, cols = cal.margins(M)
     assert min(counts.values()) >= 5, counts
-    # measured on the 213 grouped clips of seed 1: rows min 0.095, columns min 0.069
+    # measured on the 213 grouped clips of seed 1: rows min 0.066, columns min 0.069
     assert rows.min() > 0, dict(zip(names, rows.round(3), strict=True))
     assert cols.min() > 0, dict(zip(names, cols.round(3), strict=True))
 
