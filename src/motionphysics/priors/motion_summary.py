@@ -1,0 +1,84 @@
+"""What a refinement did to the motion, in the motion prior's words.
+
+:func:`motion_record` reads the motion group the prompt asks for
+(:func:`~motionphysics.priors.captions.prompt_motion_group`) and the motion group of the
+simulated trajectory before and after refinement (the caption rules of
+:func:`~motionphysics.priors.captions.motion_group` on the measures of
+:func:`~motionphysics.priors.motion_data.clip_measures`: rebound, peak and final shape
+change, spread, wobble, late speed), so the summary and the report can put the motion
+asked for next to the motion simulated. :func:`motion_lines` writes it for the summary.
+
+A group is ``None`` when the motion fits no group with a margin (the captions never
+claim a motion then); the measures are given either way.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["motion_lines", "motion_record", "trajectory_motion"]
+
+_SHOWN = ("rebound", "max_deform", "deform", "max_spread", "wobble")
+MAX_PARTICLES = 4096
+"""Particles the measures read (a seeded subset of a larger scene: the measures are
+means over particles)."""
+
+
+def _words(group: str | None) -> str:
+    return "no motion group" if group is None else group.replace("_", " ")
+
+
+def trajectory_motion(x, v, t, cls: str) -> dict[str, Any]:
+    """``{"group", "measures"}`` of a trajectory ``x``/``v`` [T, P, 3] at times ``t`` [T]
+    of a material class ``cls`` (``sand`` reads a collapse as "crumbles")."""
+    from motionphysics.priors.motion_data import clip_measures, group_of
+
+    x = np.asarray(x, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    if x.shape[1] > MAX_PARTICLES:
+        idx = np.sort(np.random.default_rng(0).choice(x.shape[1], MAX_PARTICLES, replace=False))
+        x, v = x[:, idx], v[:, idx]
+    m = clip_measures(x, v, np.asarray(t, dtype=np.float64))
+    return {"group": group_of(m, cls), "measures": {k: float(m[k]) for k in _SHOWN}}
+
+
+def motion_record(prompt: str, cls: str, t, before: tuple, after: tuple) -> dict[str, Any]:
+    """The motion asked for and simulated: ``before``/``after`` are ``(x, v)`` of the
+    initial and the refined trajectory at times ``t``."""
+    from motionphysics.priors.captions import prompt_motion_group
+
+    asked, similarity = prompt_motion_group(prompt)
+    return {
+        "asked": asked,
+        "asked_similarity": float(similarity),
+        "before": trajectory_motion(*before, t, cls),
+        "after": trajectory_motion(*after, t, cls),
+    }
+
+
+def motion_lines(rec: dict[str, Any]) -> list[str]:
+    """Summary lines: the motion asked for, and the motion before and after refinement."""
+
+    def said(r: dict[str, Any]) -> str:
+        m = r["measures"]
+        return (
+            f"{_words(r['group'])} (rebound {m['rebound']:.2f}, peak shape change "
+            f"{100 * m['max_deform']:.1f} %, spread x{m['max_spread']:.2f})"
+        )
+
+    asked = rec.get("asked")
+    ask = (
+        f"{_words(asked)} (the prompt's motion words)"
+        if asked is not None
+        else "no motion group the motion prior knows (the prompt names none)"
+    )
+    lines = [f"motion asked: {ask}"]
+    lines.append(f"  before refinement: {said(rec['before'])}")
+    mark = ""
+    if asked is not None:
+        b, a = rec["before"]["group"] == asked, rec["after"]["group"] == asked
+        mark = " (as asked)" if a else (" (was as asked before)" if b else " (not as asked)")
+    lines.append(f"  after refinement:  {said(rec['after'])}{mark}")
+    return lines
