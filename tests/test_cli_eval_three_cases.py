@@ -10,7 +10,7 @@ The runs are made by ``motionphysics simulate CONFIG`` from config files (grid 2
 most 1,500 particles, 15-20 frames); the counterparts that must score HIGH on the same
 words (a slow ooze, a clamped rod that vibrates) are trajectories written in the run
 directory format (``trajectory.npz`` and ``run.yaml``), the hand-made labelled
-trajectories of :mod:`motionphysics.metrics.adherence_calibration`.
+trajectories of :mod:`motionphysics.evaluation.adherence_calibration`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import pytest
 import yaml
 
 from motionphysics.cli import main
-from motionphysics.metrics import adherence_calibration as cal
+from motionphysics.evaluation import adherence_calibration as cal
 
 FLOOR = {
     "type": "surface_collider",

@@ -107,7 +107,9 @@ def test_fit_of_two_objects_writes_each_objects_parameters(tmp_path, capsys):
         scored = [g for g in glob[:i] if g["loss"] is not None]
         best = min(scored, key=lambda g: g["loss"])["params"]
         moved = [
-            o for o in ("stiff", "soft") if h["params"][o]["E"] != pytest.approx(best[o]["E"], rel=1e-6)
+            o
+            for o in ("stiff", "soft")
+            if h["params"][o]["E"] != pytest.approx(best[o]["E"], rel=1e-6)
         ]
         assert len(moved) == 1, (i, moved)
     for h in grad:
@@ -132,7 +134,20 @@ def test_fit_of_two_objects_to_a_video(tmp_path):
     data = _config(1e6, 1e4, grid=10, particles=40, frames=4, iterations=1, global_search=False)
     start.write_text(yaml.safe_dump(data))
     out = tmp_path / "fit"
-    assert main(["--quiet", "fit", str(start), "--reference", str(ref.with_name("video.mp4")), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "--quiet",
+                "fit",
+                str(start),
+                "--reference",
+                str(ref.with_name("video.mp4")),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     p = json.loads((out / "params.json").read_text())
     assert p["fit"]["loss"] == "video_match" and p["reference"]["kind"] == "video"
     (h,) = p["history"]
@@ -158,9 +173,7 @@ def test_fit_recovers_both_stiffnesses_from_a_start_ten_times_off(tmp_path):
     for label, factor in (("stiffer", 10.0), ("softer", 0.1)):
         start = tmp_path / f"start_{label}.yaml"
         start.write_text(
-            yaml.safe_dump(
-                _config(factor * TRUE["stiff"], factor * TRUE["soft"], iterations=30)
-            )
+            yaml.safe_dump(_config(factor * TRUE["stiff"], factor * TRUE["soft"], iterations=30))
         )
         out = tmp_path / f"fit_{label}"
         assert main(["--quiet", "fit", str(start), "--reference", str(ref), "--out", str(out)]) == 0

@@ -33,7 +33,10 @@ def _config(prompt, *, prior="motion", iterations=1, grid=12, particles=60, fram
 
     return {
         "prompt": prompt,
-        "objects": [obj("ball", "builtin:sphere", -0.16, 0.3), obj("cube", "builtin:cube", 0.16, 0.25)],
+        "objects": [
+            obj("ball", "builtin:sphere", -0.16, 0.3),
+            obj("cube", "builtin:cube", 0.16, 0.25),
+        ],
         "sim": {
             "grid": grid,
             "frames": frames,
@@ -113,7 +116,9 @@ def test_run_motion_prior_refines_each_object_with_its_phrase(tmp_path, capsys):
     )
     assert main(["eval", str(out), "--object", "torus"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"motionphysics: error: --object torus: not an object of {out}; expected one of ball, cube"]
+    assert err == [
+        f"motionphysics: error: --object torus: not an object of {out}; expected one of ball, cube"
+    ]
 
     # view --object: only that object's splats (the viewer's loader; no server here)
     from motionphysics.viewer.rundata import load_run

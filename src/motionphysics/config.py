@@ -429,6 +429,7 @@ class CameraConfig(_Strict):
     ``translate``) into the world; the image is resized to ``width`` x ``height``."""
     camera_index: int = Field(0, ge=0)
     """Which camera of ``from`` / ``cameras_json`` is used."""
+
     @model_validator(mode="after")
     def _one_camera_file(self):
         if self.from_ is not None and self.cameras_json is not None:

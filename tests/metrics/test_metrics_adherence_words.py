@@ -1,6 +1,6 @@
 """Motion adherence against labelled trajectories (issue 27, item 3).
 
-- The hand-made set (one trajectory per motion word, ``metrics.adherence_calibration``):
+- The hand-made set (one trajectory per motion word, ``evaluation.adherence_calibration``):
   every word's prompt scores highest on its own trajectory, and every trajectory ranks
   its own word first.
 - The motion prior's simulated held-out clips (``.cache/motiondata/held-out``, whose
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motionphysics.metrics import adherence_calibration as cal
+from motionphysics.evaluation import adherence_calibration as cal
 from motionphysics.metrics.adherence import measure, motion_adherence, parse_prompt
 
 ROOT = Path(__file__).resolve().parents[2]

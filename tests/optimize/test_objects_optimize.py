@@ -13,13 +13,13 @@ import torch
 from motionphysics.assembly import assemble
 from motionphysics.config import config_from_dict
 from motionphysics.errors import UserInputError
+from motionphysics.io.object_params import flat_params
 from motionphysics.losses.base import Loss, LossContext, Prediction
 from motionphysics.optimize.objects import (
     ObjectsThetaMap,
     PerObjectLoss,
     build_objects_problem,
     final_scene_material,
-    flat_params,
     object_indices,
     object_prompt,
     object_prompts,
@@ -67,10 +67,22 @@ def two_balls():
 @pytest.mark.parametrize(
     ("prompt", "name", "want"),
     [
-        ("The rubber ball bounces high and the jelly cube wobbles", "ball", "The rubber ball bounces high"),
-        ("The rubber ball bounces high and the jelly cube wobbles", "cube", "the jelly cube wobbles"),
+        (
+            "The rubber ball bounces high and the jelly cube wobbles",
+            "ball",
+            "The rubber ball bounces high",
+        ),
+        (
+            "The rubber ball bounces high and the jelly cube wobbles",
+            "cube",
+            "the jelly cube wobbles",
+        ),
         ("A steel axe falls, while the rubber ducks wobble.", "duck", "the rubber ducks wobble"),
-        ("the soft_block squashes flat; the hard ball keeps its shape", "soft_block", "the soft_block squashes flat"),
+        (
+            "the soft_block squashes flat; the hard ball keeps its shape",
+            "soft_block",
+            "the soft_block squashes flat",
+        ),
     ],
 )
 def test_object_phrase_is_the_clause_that_names_it(prompt, name, want):
@@ -119,7 +131,9 @@ def test_per_object_params_and_their_one_line_errors(two_balls):
     bad = parts.cfg.model_copy(
         update={"optimize": parts.cfg.optimize.model_copy(update={"params": {"a": ["mu"]}})}
     )
-    with pytest.raises(UserInputError, match=r"^optimize\.params\.a: mu not parameters of class elastic") as err:
+    with pytest.raises(
+        UserInputError, match=r"^optimize\.params\.a: mu not parameters of class elastic"
+    ) as err:
         objects_optimised(bad, parts.objects)
     assert "\n" not in str(err.value)
 
@@ -127,9 +141,15 @@ def test_per_object_params_and_their_one_line_errors(two_balls):
 @pytest.mark.parametrize(
     ("optimize", "match"),
     [
-        ({"params": {"c": ["E"]}}, r"optimize\.params: c not an object of this scene; expected names among a, b"),
+        (
+            {"params": {"c": ["E"]}},
+            r"optimize\.params: c not an object of this scene; expected names among a, b",
+        ),
         ({"params": {}}, r"optimize\.params: empty mapping"),
-        ({"per_particle": ["E"], "params": ["E"]}, r"optimize\.per_particle: per-particle fields are for one object"),
+        (
+            {"per_particle": ["E"], "params": ["E"]},
+            r"optimize\.per_particle: per-particle fields are for one object",
+        ),
         ({"initial_velocity": True}, r"optimize\.initial_velocity: with several objects"),
     ],
 )
@@ -290,7 +310,9 @@ def test_each_object_sees_the_motion_prior_with_its_own_rest_state_and_phrase(tw
         for phrase, i in zip(("the ball a bounces high", "the ball b wobbles"), idx, strict=True)
     ]
     rest = torch.as_tensor(np.asarray(two_balls.sim_scene.particles), dtype=torch.float32)
-    for view, i, phrase in zip(views, idx, ("the ball a bounces high", "the ball b wobbles"), strict=True):
+    for view, i, phrase in zip(
+        views, idx, ("the ball a bounces high", "the ball b wobbles"), strict=True
+    ):
         assert torch.equal(view.scene.rest, rest[i])
         assert view.text.prompt == phrase
         assert view.net is prior.net  # the same network, not a copy
@@ -383,9 +405,7 @@ def test_each_objects_motion_features_have_the_gradient_of_central_differences(t
         def __call__(self, pred, ctx):
             total = 0.0
             for view, i, w in zip(views, idx, weights, strict=True):
-                z = view.encode_states(
-                    pred.xs[:, i], pred.Fs[:, i], tuple(pred.frame_indices)
-                )
+                z = view.encode_states(pred.xs[:, i], pred.Fs[:, i], tuple(pred.frame_indices))
                 total = total + (z.double() * w).sum()
             return total
 

@@ -267,8 +267,7 @@ def _one_object(run, name: str, prompt_text, prompt_source, given: bool):
     slices = dict(object_slices(traj))
     if name not in slices:
         raise UserInputError(
-            f"--object {name}: not an object of {run['path']}; expected one of "
-            f"{', '.join(slices)}"
+            f"--object {name}: not an object of {run['path']}; expected one of {', '.join(slices)}"
         )
     objs = [o for o in params.get("objects") or [] if o.get("name") == name]
     one = {**params, "class": objs[0].get("class") if objs else None}

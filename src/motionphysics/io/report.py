@@ -371,7 +371,7 @@ def optimisation_section_html(
     """
     run_dir = Path(run_dir)
     e = html.escape
-    from motionphysics.optimize.objects import flat_params
+    from motionphysics.io.object_params import flat_params
 
     records = list(history if history is not None else params.get("history") or [])
     if not records:

@@ -811,7 +811,7 @@ def _object_row_col(frame0: np.ndarray, background) -> tuple[int, int]:
 
 def _plot_records(history: list[dict]) -> list[dict]:
     """History records with per-particle values reduced to their mean (for the plots)."""
-    from motionphysics.optimize.objects import flat_params
+    from motionphysics.io.object_params import flat_params
 
     out = []
     for r in history:

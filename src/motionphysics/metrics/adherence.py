@@ -44,7 +44,7 @@ The thresholds are physical judgements, documented beside each behaviour (e.g. a
 bounce is a centroid rise of at least 15 % of the fall, a squash a loss of at least
 10 % of the height at some instant). No optimiser fitted them, but they and the word
 lists were adjusted while the confusion matrices of labelled trajectories were
-watched: hand-made ones per motion word (:mod:`.adherence_calibration`) and the motion
+watched: hand-made ones per motion word (:mod:`motionphysics.evaluation.adherence_calibration`) and the motion
 prior's simulated clips, whose group is their measured motion (the training clips for
 adjusting, the held-out clips for the published check: BENCHMARKS.md, "Motion
 adherence: words x behaviours"). This module must not read files or run simulations.

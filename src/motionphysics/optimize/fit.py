@@ -307,9 +307,9 @@ def global_search(
 
     import torch
 
+    from motionphysics.io.object_params import flat_params
     from motionphysics.losses.base import LossContext
     from motionphysics.optimize.loop import _append_log
-    from motionphysics.optimize.objects import flat_params
 
     t_start = time.perf_counter()
     names = list(problem.theta_map.names)

@@ -42,6 +42,7 @@ import torch
 from torch import Tensor
 
 from motionphysics.errors import UserInputError
+from motionphysics.io.object_params import SEP, leaf
 from motionphysics.losses.base import Loss, LossContext, Prediction
 from motionphysics.optimize.problem import ParamSpec, Problem, _summary
 
@@ -57,13 +58,6 @@ __all__ = [
     "objects_optimised",
     "side_by_side",
 ]
-
-SEP = "."
-"""Between an object's name and a parameter's in a leaf name (``duck.E``)."""
-
-
-def leaf(obj: str, name: str) -> str:
-    return f"{obj}{SEP}{name}"
 
 
 # --- which parameters -------------------------------------------------------------------
@@ -121,9 +115,7 @@ class ObjectsThetaMap:
         self.names = [leaf(obj, n) for obj, pm in self.maps for n in pm.names]
 
     def to_theta(self, values: Mapping[str, Any]) -> Tensor:
-        parts = [
-            pm.to_theta({n: values[leaf(obj, n)] for n in pm.names}) for obj, pm in self.maps
-        ]
+        parts = [pm.to_theta({n: values[leaf(obj, n)] for n in pm.names}) for obj, pm in self.maps]
         return torch.cat(parts)
 
     def from_theta(self, theta: Tensor) -> dict[str, Tensor]:
@@ -268,19 +260,6 @@ def side_by_side(problem: ObjectsProblem, start, final) -> dict[str, dict[str, A
     return out
 
 
-def flat_params(params: Mapping[str, Any]) -> dict[str, Any]:
-    """A record's ``params`` with objects' values as ``OBJECT.PARAM`` keys (one object's
-    records are returned as they are)."""
-    out: dict[str, Any] = {}
-    for k, v in params.items():
-        if isinstance(v, Mapping) and not {"mean", "min", "max"} >= set(v):
-            for n, x in v.items():
-                out[leaf(k, n)] = x
-        else:
-            out[k] = v
-    return out
-
-
 # --- each object's phrase -----------------------------------------------------------------
 _CLAUSE_SPLIT = re.compile(r"[,;.!?]|\b(?:and|while|whereas|but|then)\b", re.IGNORECASE)
 
@@ -289,9 +268,7 @@ def _names_in(text: str, forms: list[list[str]]) -> bool:
     from motionphysics.init.kb import tokenize
 
     toks = [t for w in re.findall(r"[A-Za-z0-9'’-]+", text) for t in (tokenize(w) or [w])]
-    return any(
-        toks[i : i + len(f)] == f for f in forms for i in range(len(toks) - len(f) + 1)
-    )
+    return any(toks[i : i + len(f)] == f for f in forms for i in range(len(toks) - len(f) + 1))
 
 
 def object_prompt(prompt: str, name: str, others: tuple[str, ...] = ()) -> str | None:

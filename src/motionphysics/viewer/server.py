@@ -189,7 +189,7 @@ def history_series(history: list[dict[str, Any]]) -> dict[str, np.ndarray]:
     Values are float64 ``[I]`` (NaN where a record lacks them); parameters come from
     each record's ``params`` (physical units, SI).
     """
-    from motionphysics.optimize.objects import flat_params
+    from motionphysics.io.object_params import flat_params
 
     # several objects: each object's values as OBJECT.PARAM curves
     history = [{**r, "params": flat_params(r.get("params") or {})} for r in history]

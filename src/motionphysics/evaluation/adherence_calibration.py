@@ -16,7 +16,7 @@ Two kinds of labels, neither fitted by the score:
 :func:`confusion` scores every prompt on every labelled trajectory (rows: prompts, that
 is words or groups; columns: the behaviours), :func:`margins` says by how much the
 diagonal is the highest in every row and column. ``python -m
-motionphysics.metrics.adherence_calibration [--clips DIR]`` prints both as markdown
+motionphysics.evaluation.adherence_calibration [--clips DIR]`` prints both as markdown
 (BENCHMARKS.md, "Motion adherence: words x behaviours").
 
 This module writes nothing; only :func:`clip_confusion` reads files (the clips).
