@@ -224,8 +224,13 @@ def run_pipeline(
             # The report shows the initial estimate's motion beside the refined one.
             with writer.stage("initial video", total=frames) as st:
                 p0 = parts.with_material(initial_material)
-                xs0, Fs0, _, _ = p0.simulate(frames, st)
+                xs0, Fs0, vs0, _ = p0.simulate(frames, st)
                 writer.write_video(p0.render(xs0, Fs0), cfg.sim.frame_dt, "video_initial.mp4")
+            if parts.objects is None and "optimise" in writer.state:
+                # the motion asked for beside the motion before and after refinement
+                writer.state["optimise"]["motion"] = _motion_record(
+                    cfg, material, (xs0, vs0), (xs, vs)
+                )
 
         # ---- outputs -------------------------------------------------------------------
         with writer.stage("write outputs"):
@@ -243,6 +248,21 @@ def run_pipeline(
             with writer.stage("export splats", total=frames) as st:
                 writer.export_splats(parts.sim_scene, xs, Fs, on_frame=st.advance)
         return writer.finish()
+
+
+def _motion_record(cfg: RunConfig, material, before, after) -> dict[str, Any]:
+    """The motion group the prompt asks for and those of the initial and the refined
+    trajectory (:mod:`motionphysics.priors.motion_summary`), with its summary lines."""
+
+    from motionphysics.priors.motion_summary import motion_lines, motion_record
+
+    def arr(a):
+        return np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
+
+    (x0, v0), (x1, v1) = before, after
+    t = np.arange(arr(x1).shape[0]) * float(cfg.sim.frame_dt)
+    rec = motion_record(cfg.prompt or "", material.cls, t, (arr(x0), arr(v0)), (arr(x1), arr(v1)))
+    return {**rec, "lines": motion_lines(rec)}
 
 
 def wants_refinement(cfg: RunConfig) -> bool:

@@ -51,3 +51,27 @@ def test_recolouring_the_scene_leaves_the_motion_prior_loss_bit_identical(tmp_pa
         assert ra["loss"] == rb["loss"] and ra["params"] == rb["params"]
         assert ra["grad_norm"] == rb["grad_norm"]
         assert ra["time"]["render"] < 0.01  # nothing was rendered for the loss
+
+
+def test_the_summary_params_and_report_show_the_motion_asked_and_simulated(tmp_path, capsys):
+    """``run --prior motion`` (the shipped weights) through a config file: the summary,
+    ``params.json`` and the report put the motion group the prompt asks for beside the
+    groups of the initial and the refined trajectory."""
+    data = _config("builtin:sphere")
+    data["optimize"] = {"iterations": 1, "boost": 1, "prior": "motion", "loss": "lmd"}
+    cfg = tmp_path / "ball.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert main(["run", str(cfg), "--out", str(out)]) == 0
+    summary = capsys.readouterr().out
+    motion = json.loads((out / "params.json").read_text())["optimise"]["motion"]
+    assert motion["asked"] == "bounces_high"  # "A rubber bird bounces high."
+    for when in ("before", "after"):
+        m = motion[when]["measures"]
+        assert set(m) >= {"rebound", "max_deform", "max_spread"}
+        assert motion[when]["group"] is None or isinstance(motion[when]["group"], str)
+    assert motion["lines"][0] == "motion asked: bounces high (the prompt's motion words)"
+    for line in motion["lines"]:
+        assert line in summary
+    report = (out / "report.html").read_text()
+    assert "Motion asked for and simulated" in report and "before refinement:" in report

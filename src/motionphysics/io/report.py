@@ -386,6 +386,10 @@ def optimisation_section_html(
         + (f"; stopped: {e(str(stop))}" if stop else "")
         + ". <a href='#viewer'>Open this run in the viewer</a> to see it from any side.</p>"
     )
+    motion = opt.get("motion") or {}
+    if motion.get("lines"):
+        out.append("<h3>Motion asked for and simulated</h3>")
+        out.append("<pre>" + e("\n".join(motion["lines"])) + "</pre>")
     out.append("<div class='pair'>")
     for label, rel in (
         ("initial parameters", initial_video),

@@ -948,6 +948,7 @@ def summary_text(result: RunResult) -> str:
             f"{label} {opt.get('message', '')} ({opt.get('loss', '?')}, grad_mode "
             f"{opt.get('grad_mode', '?')})"
         )
+        lines += list((opt.get("motion") or {}).get("lines") or [])
     m = result.metrics or {}
     if m:
         lines.append(
