@@ -252,9 +252,8 @@ def register(subparsers) -> None:
         type=float,
         default=None,
         metavar="W",
-        help="weight of the caption-contrast term (motion: cross-entropy of the clip's own "
-        "group over every group's x0 error at the same noise; tiny: own-group prompt must "
-        "denoise better than another group's); 0 = plain denoising (motion 0.5, tiny 0)",
+        help="weight of the caption-contrast hinge (own-group prompt must denoise better than "
+        "another group's, at the same noise); 0 = plain denoising (motion 0.5, tiny 0)",
     )
     t.add_argument(
         "--no-balance",

@@ -10,11 +10,11 @@ for it. It knows our simulator, not real video.
 Layout:
 
 - ``encode_states(xs, Fs, frame_indices)``: the per-frame features of
-  :mod:`.motion_features` (17 dimensionless channels: heights, underside, drift,
+  :mod:`.motion_features` (12 dimensionless channels: heights, underside, drift,
   extents, shape change, strain, volume, time, gravity) of the observed frames, with
   the rest state put first and resampled onto ``num_frames`` (16) uniform times over
   the observed span, standardised with the training set's per-channel mean and std and
-  softly bounded (``5 tanh(z / 5)``): latents ``[1, num_frames, 17, 1, 1]`` (the
+  softly bounded (``5 tanh(z / 5)``): latents ``[1, num_frames, 12, 1, 1]`` (the
   CogVideoX ``[B, F, C, h, w]`` layout), differentiable in ``xs`` and ``Fs``;
 - x0 prediction (``prediction_type = "sample"``) on a 1000-step cosine schedule;
 - text: the pooled MiniLM sentence vector ``[1, 1, 384]`` of the package's

@@ -40,32 +40,10 @@ index  name             meaning
                         object's free-fall time scale (g0 = 9.8 m/s^2, so it is
                         defined with gravity off)
 11     gravity          |g| / g0 (constant over a clip)
-12     rebound          log(0.01 + r), r the captions' rebound ratio of the frames
-                        so far: with ``k``
-                        the frame of the lowest centroid height so far, the rise of
-                        the centroid since ``k`` over the fall before it,
-                        ``rise / fall`` with ``fall = h(c_0) - h(c_k)`` (frame 0 is the
-                        rest state), gated to 0 when the fall is below 5 % of L
-                        (``rise * fall / max(fall, 0.05 L)^2``: a throw upward before
-                        any fall is not a rebound). At the last frame it equals
-                        ``metrics.physical``'s rebound ratio of the clip. The log
-                        scale spreads the thresholds that separate "keeps its shape"
-                        (r < 0.04), "barely bounces" (0.06-0.3) and "bounces high"
-                        (> 0.35), and keeps a rare r of 10 (a bounce after a grazing
-                        landing) from dominating the channel's statistics.
-13     max_shape        log(0.003 + max so far of d / L): the largest shape change
-                        yet (the peak squash at impact stays visible after recovery)
-14     max_spread       the largest ``spread`` so far
-15     min_vertical     the smallest ``vertical`` so far (the deepest flattening)
-16     speed            log(0.003 + s / sqrt(g0 L)), s the mean particle speed
-                        between the previous observed frame and this one [m/s]
-                        (0 at the rest frame): Froude-scaled, so a 1 cm and a 1 m
-                        object settling alike read alike
+12     rebound          (h(c) - m) / max(h(c0) - m, 0.05 L), m the lowest centroid
+                        height so far: how far the centroid has risen again since its
+                        lowest point, over the fall before it (the captions' rebound)
 =====  ===============  =============================================================
-
-Channels 12-15 are running extremes: their last frame holds the whole clip's measure
-(the peak squash, the widest spread), which a linear resampling of the per-frame
-values could miss between grid points.
 
 :func:`clip_features` turns the observed frames at arbitrary times (the supervised
 frames of a run, or a training clip's frames) into the prior's fixed grid: the rest
@@ -108,10 +86,6 @@ FEATURE_NAMES = (
     "time",
     "gravity",
     "rebound",
-    "max_shape",
-    "max_spread",
-    "min_vertical",
-    "speed",
 )
 NUM_FEATURES = len(FEATURE_NAMES)
 G0 = 9.8
@@ -206,51 +180,27 @@ def frame_features(x: Tensor, F: Tensor, times: Tensor, scene: MotionScene) -> T
     tt = torch.as_tensor(times, dtype=dt, device=x.device)
     time_ch = torch.log1p(tt * math.sqrt(G0 / L))
     grav = torch.full_like(tt, scene.g / G0)
-    rebound = _prefix_rebound(h_c, 0.05 * L)
-    spread = torch.log(r_h / r_h0)
-    vertical = torch.log(sig_up / sig_up0)
-    shape_log = torch.log(LOG_FLOOR + shape)
-    step = (x[1:] - x[:-1]).pow(2).sum(-1).add(1e-20).sqrt().mean(1)  # [T-1] m
-    gap = (tt[1:] - tt[:-1]).clamp_min(1e-9)
-    speed = torch.cat([torch.zeros_like(tt[:1]), step / gap]) / math.sqrt(G0 * L)
+    lowest = torch.cummin(h_c, dim=0).values
+    h_rest = float(c0 @ up) - ground
+    rebound = (h_c - lowest) / torch.clamp(h_rest - lowest, min=0.05 * L)
     return torch.stack(
         [
             h_c / h_c0,
             h_c / L,
             (low - ground) / L,
             drift,
-            vertical,
-            spread,
+            torch.log(sig_up / sig_up0),
+            torch.log(r_h / r_h0),
             0.5 * torch.log(tr / tr0.clamp_min(1e-12 * L**2)),
-            shape_log,
+            torch.log(LOG_FLOOR + shape),
             torch.log(LOG_FLOOR + strain),
             volume,
             time_ch,
             grav,
-            torch.log(0.01 + rebound),
-            torch.cummax(shape_log, dim=0).values,
-            torch.cummax(spread, dim=0).values,
-            torch.cummin(vertical, dim=0).values,
-            torch.log(LOG_FLOOR + speed),
+            rebound,
         ],
         dim=-1,
     )
-
-
-def _prefix_rebound(h: Tensor, min_fall: float) -> Tensor:
-    """[T] the rebound ratio of every prefix of the centroid heights ``h`` [T] (see the
-    module docstring, channel ``rebound``); differentiable in ``h`` (the frame of the
-    lowest point is chosen without gradient)."""
-    out = []
-    k = 0
-    hv = h.detach().tolist()
-    for t in range(h.shape[0]):
-        if hv[t] < hv[k]:
-            k = t
-        fall = (h[0] - h[k]).clamp_min(0.0)
-        rise = h[k : t + 1].max() - h[k]
-        out.append(rise * fall / torch.clamp(fall, min=min_fall) ** 2)
-    return torch.stack(out)
 
 
 def resample(values: Tensor, times: Tensor, num_frames: int) -> Tensor:

@@ -62,9 +62,9 @@ __all__ = [
     "train",
 ]
 
-CAPTIONS_PER_CLIP = 12
+CAPTIONS_PER_CLIP = 6
 NUM_FRAMES = 16
-FEATURES_VERSION = "4"
+FEATURES_VERSION = "2"
 VIEWS: tuple[tuple[int, int], ...] = ((1, 1), (2, 1), (2, 2), (3, 1), (3, 3))
 """(stride, first frame) of the observed subsequences a clip is seen through: every
 frame; every second frame from frame 1 or 2; every third frame from frame 1 or 3."""
@@ -80,23 +80,7 @@ class MotionTrainOptions:
     ema_decay: float = 0.999
     cond_dropout: float = 0.1
     contrast: float = 0.5
-    """Weight of the caption-contrast term (0: plain denoising)."""
-    contrast_form: str = "groups"
-    """``groups``: cross-entropy of the true group over all groups' x0 errors (each
-    group's prompt a random training phrasing, logits ``-err_g / (T mean_g err_g)``),
-    the measure discrimination uses, trained directly; ``hinge``: own group against one
-    other group, by a relative margin."""
-    contrast_rows: int = 16
-    """Clips of a batch (with a motion group) the ``groups`` contrast scores."""
-    contrast_temperature: float = 0.1
-    """A 10 % lower x0 error is one logit (``groups``)."""
-    contrast_t: tuple[int, int] = (150, 750)
-    """Timesteps of the ``groups`` contrast (where the caption can change the x0
-    prediction: at small t the noisy input fixes it)."""
-    text_noise: float = 0.25
-    """Norm of the Gaussian noise added to the unit caption vector during training (then
-    renormalised): the prior answers alike for phrasings near each other in MiniLM space,
-    so an unseen phrasing reads like its nearest training phrasings."""
+    """Weight of the caption-contrast hinge (0: plain denoising)."""
     contrast_margin: float = 0.05
     seed: int = 0
     save_every: int = 200
@@ -231,15 +215,6 @@ class _GroupPrompts:
                     texts.append(group_prompt(g, sh, k, held_out=False))
         self.emb = sentence_embeddings(texts)
 
-    def draw_all(self, shape: str, gen: torch.Generator) -> Tensor:
-        """[len(GROUPS), D]: one random training phrasing of every group."""
-        si = self.shapes.index(shape)
-        rows = []
-        for gi in range(len(GROUPS)):
-            r = self.rows[(gi, si)]
-            rows.append(r[int(torch.randint(0, len(r), (1,), generator=gen))])
-        return self.emb[rows]
-
     def draw(self, group: int, shape: str, gen: torch.Generator) -> tuple[Tensor, Tensor]:
         si = self.shapes.index(shape)
         other = int(torch.randint(0, len(GROUPS) - 1, (1,), generator=gen))
@@ -292,13 +267,6 @@ def prior_from_checkpoint(path: str | Path, device: str = "cpu") -> MotionPrior:
 
 
 # ---- training ------------------------------------------------------------------------
-
-
-def _jitter(emb: Tensor, norm: float, gen: torch.Generator) -> Tensor:
-    """Unit vectors ``emb`` [N, D] moved by Gaussian noise of expected norm ``norm`` and
-    renormalised."""
-    noise = torch.randn(emb.shape, generator=gen) * (norm / emb.shape[-1] ** 0.5)
-    return torch.nn.functional.normalize(emb + noise.to(emb), dim=-1)
 
 
 def _lr(step: int, o: MotionTrainOptions) -> float:
@@ -424,8 +392,6 @@ def train(
             z0 = z_all[torch.from_numpy(idx), view]  # [B, T, C]
             pick = torch.randint(0, CAPTIONS_PER_CLIP, (b,), generator=gen).numpy()
             txt = text_emb[torch.from_numpy(ds["caption_idx"][idx, pick])]
-            if o.text_noise > 0:
-                txt = _jitter(txt, o.text_noise, gen)
             drop = torch.rand(b, generator=gen) < o.cond_dropout
             txt = torch.where(drop[:, None], uncond[None], txt)
             t = torch.randint(0, 1000, (b,), generator=gen)
@@ -438,42 +404,18 @@ def train(
             loss = ((net(zt, t, txt) - z0) ** 2).mean()
             total = loss
             hinge = None
-            rows = [r for r in range(b) if gidx[idx[r]] >= 0]
-            if contrast is not None and rows and o.contrast_form == "groups":
-                rows = rows[: o.contrast_rows]
-                G = len(GROUPS)
-                prompts = torch.stack(
-                    [contrast.draw_all(ds["specs"][idx[r]]["shape"], gen) for r in rows]
-                )
-                if o.text_noise > 0:
-                    prompts = _jitter(prompts.reshape(-1, prompts.shape[-1]), o.text_noise, gen)
-                prompts = prompts.reshape(len(rows), G, -1).to(device)
-                sel = torch.tensor(rows)
-                tc = torch.randint(o.contrast_t[0], o.contrast_t[1], (len(rows),), generator=gen)
-                nc = torch.randn((len(rows), *z0.shape[1:]), generator=gen).to(device)
-                ac_ = ac[tc.to(device)].view(-1, 1, 1)
-                zc0 = z0[sel.to(device)]
-                zct = ac_.sqrt() * zc0 + (1 - ac_).sqrt() * nc
-                pred_c = net(
-                    zct.repeat_interleave(G, 0),
-                    tc.to(device).repeat_interleave(G, 0),
-                    prompts.reshape(len(rows) * G, -1),
-                )
-                err = ((pred_c - zc0.repeat_interleave(G, 0)) ** 2).mean(dim=(1, 2)).reshape(-1, G)
-                logits = -err / (o.contrast_temperature * err.mean(1, keepdim=True).detach())
-                target = torch.tensor([gidx[idx[r]] for r in rows], device=device)
-                hinge = torch.nn.functional.cross_entropy(logits, target)
-                total = loss + o.contrast * hinge
-            elif contrast is not None and rows:
-                pairs = [
-                    contrast.draw(gidx[idx[r]], ds["specs"][idx[r]]["shape"], gen) for r in rows
-                ]
-                both = torch.stack([p_ for pr in pairs for p_ in pr]).to(device)
-                sel = torch.tensor(rows).repeat_interleave(2).to(device)
-                err = ((net(zt[sel], t[sel], both) - z0[sel]) ** 2).mean(dim=(1, 2))
-                pos, neg = err[0::2], err[1::2]
-                hinge = torch.relu(pos - neg + o.contrast_margin * pos.detach()).mean()
-                total = loss + o.contrast * hinge
+            if contrast is not None:
+                rows = [r for r in range(b) if gidx[idx[r]] >= 0]
+                if rows:
+                    pairs = [
+                        contrast.draw(gidx[idx[r]], ds["specs"][idx[r]]["shape"], gen) for r in rows
+                    ]
+                    both = torch.stack([p_ for pr in pairs for p_ in pr]).to(device)
+                    sel = torch.tensor(rows).repeat_interleave(2).to(device)
+                    err = ((net(zt[sel], t[sel], both) - z0[sel]) ** 2).mean(dim=(1, 2))
+                    pos, neg = err[0::2], err[1::2]
+                    hinge = torch.relu(pos - neg + o.contrast_margin * pos.detach()).mean()
+                    total = loss + o.contrast * hinge
             opt.zero_grad(set_to_none=True)
             total.backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
@@ -495,7 +437,7 @@ def train(
                     "epoch": state["epoch"],
                 }
                 if run_hinge:
-                    rec["contrast"] = float(np.mean(run_hinge[-o.log_every :]))
+                    rec["contrast_hinge"] = float(np.mean(run_hinge[-o.log_every :]))
                 state["log"].append(rec)
                 log(json.dumps(rec))
             if state["step"] % o.save_every == 0:
@@ -576,13 +518,12 @@ def feature_classifier(
     hidden: int = 128,
 ) -> dict[str, Any]:
     """A text-free classifier of the motion group from the features (an MLP on the
-    standardised last frame of the full view of the training clips: the running
-    extremes, the rebound and the final state hold the clip's measures there), scored
-    on ``test_ds``: whether the features separate the groups at all."""
+    standardised full-view features of the training clips), scored on ``test_ds``:
+    whether the features separate the groups at all."""
 
     def xy(ds):
         keep = [i for i, g in enumerate(ds["groups"]) if g is not None]
-        x = torch.from_numpy(ds["features"][keep, 0, -1]).reshape(len(keep), -1)
+        x = torch.from_numpy(ds["features"][keep, 0]).reshape(len(keep), -1)
         y = torch.tensor([GROUPS.index(ds["groups"][i]) for i in keep])
         return x, y
 
