@@ -8,7 +8,8 @@ from each run's ``params.json``, as a user would read it. The bar: the stiff pro
 least 3x the soft prompt's, the thin prompt's mu at least 10x below the thick prompt's; a third pair (plasticine,
 yield stress: "keeps its shape" against "squashes flat and stays flat", bar 3) with
 ``--classes plasticine``. ``--prior`` picks the prior (default ``motion``, the embedded
-motion prior; ``tiny`` the pixel prior).
+motion prior; ``cogvideox`` / ``modelscope`` with ``--prior-path``, a local model; the
+embedded pixel prior ``tiny`` was removed on 2026-12-03).
 
 ``--invariance`` instead runs one prompt on one shape in three textures and two geometry
 variants, with ``lmd`` and with ``sds``, and reports the spread (standard deviation) of
@@ -19,7 +20,7 @@ the optimised log10 E of each loss (the paper's Figure 3 claim: smaller with lmd
 
 The starts are where the parameter changes what is seen at the scenes' 0.3 m size (E
 1e5 Pa: stiffer looks rigid; mu 1 Pa s: between a splash and an ooze); the tiny prior's
-figures in BENCHMARKS.md started from E 3e8 and mu 0.1. The scenes are not in the
+figures in BENCHMARKS.md (removed since) started from E 3e8 and mu 0.1. The scenes are not in the
 priors' training data: the real capture in
 ``../shared/data/real/donut.ply`` (when present) and a capsule mesh written here.
 ``--loss-options`` passes options to the loss (JSON), e.g.
@@ -239,11 +240,13 @@ def main() -> None:
     ap.add_argument("--loss", default="lmd", choices=["lmd", "sds"])
     ap.add_argument("--loss-options", type=json.loads, default={})
     ap.add_argument("--contrast", action="store_true", help="negative_prompt = the other prompt")
-    ap.add_argument("--prior", default="motion", choices=["motion", "tiny"])
+    ap.add_argument("--prior", default="motion", choices=["motion", "cogvideox", "modelscope"])
     ap.add_argument("--prior-path", default=None, help="a prior checkpoint (default: shipped)")
     ap.add_argument("--invariance", action="store_true")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
+    if args.prior != "motion" and not args.prior_path:
+        ap.error(f"--prior {args.prior} needs --prior-path (a local model directory)")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         args.out = args.out or tmp / "runs"
