@@ -229,7 +229,7 @@ def run_pipeline(
             if parts.objects is None and "optimise" in writer.state:
                 # the motion asked for beside the motion before and after refinement
                 writer.state["optimise"]["motion"] = _motion_record(
-                    cfg, material, (xs0, vs0), (xs, vs)
+                    cfg, material, (xs0, vs0), (xs, vs), parts.sim_scene
                 )
 
         # ---- outputs -------------------------------------------------------------------
@@ -250,18 +250,35 @@ def run_pipeline(
         return writer.finish()
 
 
-def _motion_record(cfg: RunConfig, material, before, after) -> dict[str, Any]:
+def _motion_record(cfg: RunConfig, material, before, after, sim_scene) -> dict[str, Any]:
     """The motion group the prompt asks for and those of the initial and the refined
-    trajectory (:mod:`motionphysics.priors.motion_summary`), with its summary lines."""
-
+    trajectory (:mod:`motionphysics.priors.motion_summary`), each with eval's motion
+    adherence (the same masses, gravity and floor as ``metrics.json``), with its summary
+    lines."""
+    from motionphysics.config import config_to_dict
+    from motionphysics.evaluation.evaluate import floor_from_config
+    from motionphysics.metrics.physical import up_axis
     from motionphysics.priors.motion_summary import motion_lines, motion_record
 
     def arr(a):
         return np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
 
     (x0, v0), (x1, v1) = before, after
-    t = np.arange(arr(x1).shape[0]) * float(cfg.sim.frame_dt)
-    rec = motion_record(cfg.prompt or "", material.cls, t, (arr(x0), arr(v0)), (arr(x1), arr(v1)))
+    x0, v0, x1, v1 = arr(x0), arr(v0), arr(x1), arr(v1)
+    t = np.arange(x1.shape[0]) * float(cfg.sim.frame_dt)
+    gravity = np.asarray(cfg.sim.gravity, dtype=np.float64)
+    mass = arr(sim_scene.volumes) * arr(material.density)
+    floor = floor_from_config(config_to_dict(cfg), up_axis(gravity), x1[0])
+    rec = motion_record(
+        cfg.prompt or "",
+        material.cls,
+        t,
+        (x0, v0),
+        (x1, v1),
+        mass=mass,
+        gravity=gravity,
+        floor=floor,
+    )
     return {**rec, "lines": motion_lines(rec)}
 
 

@@ -75,3 +75,11 @@ def test_the_summary_params_and_report_show_the_motion_asked_and_simulated(tmp_p
         assert line in summary
     report = (out / "report.html").read_text()
     assert "Motion asked for and simulated" in report and "before refinement:" in report
+    # eval's motion adherence of both trajectories: the refined one is the number
+    # metrics.json holds (float32 trajectory.npz against the float64 states: 1e-4)
+    a0, a1 = motion["before"]["adherence"]["score"], motion["after"]["adherence"]["score"]
+    assert 0.0 <= a0 <= 1.0 and 0.0 <= a1 <= 1.0
+    assert main(["--quiet", "eval", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert a1 == pytest.approx(metrics["motion_adherence"]["score"], abs=1e-4)
+    assert f"motion adherence (eval, 0..1): {a0:.2f} before, {a1:.2f} after" in summary

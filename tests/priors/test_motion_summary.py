@@ -58,6 +58,11 @@ def test_the_record_puts_the_asked_motion_beside_before_and_after():
     assert lines[0].startswith("motion asked: bounces high")
     assert "before refinement: keeps shape" in lines[1]
     assert lines[2].endswith("(as asked)")
+    # eval's motion adherence of each: the dead landing fails "bounces high", the bounce
+    # passes, and the summary says the score rose
+    a0, a1 = rec["before"]["adherence"]["score"], rec["after"]["adherence"]["score"]
+    assert a0 < 0.5 < a1
+    assert lines[3] == f"  motion adherence (eval, 0..1): {a0:.2f} before, {a1:.2f} after (rose)"
     none = motion_record("A rubber ball", "elastic", t, (x0, v0), (x1, v1))
     assert none["asked"] is None
     assert "names none" in motion_lines(none)[0]

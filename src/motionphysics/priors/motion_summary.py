@@ -10,6 +10,11 @@ asked for next to the motion simulated. :func:`motion_lines` writes it for the s
 
 A group is ``None`` when the motion fits no group with a margin (the captions never
 claim a motion then); the measures are given either way.
+
+Beside the groups, each trajectory gets the motion adherence score that ``motionphysics
+eval`` computes (:func:`~motionphysics.metrics.adherence.motion_adherence`, the prompt
+against the measured motion, 0..1): the same number ``metrics.json`` holds for the refined
+run, and the number the initial estimate would have had.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["motion_lines", "motion_record", "trajectory_motion"]
+__all__ = ["adherence_of", "motion_lines", "motion_record", "trajectory_motion"]
 
 _SHOWN = ("rebound", "max_deform", "deform", "max_spread", "wobble")
 MAX_PARTICLES = 4096
@@ -44,18 +49,53 @@ def trajectory_motion(x, v, t, cls: str) -> dict[str, Any]:
     return {"group": group_of(m, cls), "measures": {k: float(m[k]) for k in _SHOWN}}
 
 
-def motion_record(prompt: str, cls: str, t, before: tuple, after: tuple) -> dict[str, Any]:
+def adherence_of(prompt: str, x, v, t, *, mass=None, gravity=None, floor=None) -> dict:
+    """``{"score", "explanations"}``: eval's motion adherence of ``prompt`` on a trajectory
+    ``x``/``v`` [T, P, 3] at times ``t``; ``score`` is None (with ``reason``) when the
+    prompt holds no motion word the adherence knows."""
+    from motionphysics.metrics.adherence import motion_adherence
+
+    traj: dict[str, Any] = {"x": np.asarray(x), "v": np.asarray(v), "t": np.asarray(t)}
+    if mass is not None:
+        traj["mass"] = np.asarray(mass, dtype=np.float64)
+    if gravity is not None:
+        traj["gravity"] = np.asarray(gravity, dtype=np.float64)
+    a = motion_adherence(prompt, traj, floor=floor)
+    out = {"score": a.get("score"), "explanations": list(a.get("explanations") or [])}
+    if a.get("score") is None and a.get("reason"):
+        out["reason"] = a["reason"]
+    return out
+
+
+def motion_record(
+    prompt: str,
+    cls: str,
+    t,
+    before: tuple,
+    after: tuple,
+    *,
+    mass=None,
+    gravity=None,
+    floor: float | None = None,
+) -> dict[str, Any]:
     """The motion asked for and simulated: ``before``/``after`` are ``(x, v)`` of the
-    initial and the refined trajectory at times ``t``."""
+    initial and the refined trajectory at times ``t``. ``mass`` [P], ``gravity`` [3] and
+    ``floor`` (ground height along up, or None: the lowest point reached) are what eval
+    scores the adherence with."""
     from motionphysics.priors.captions import prompt_motion_group
 
     asked, similarity = prompt_motion_group(prompt)
-    return {
+    rec: dict[str, Any] = {
         "asked": asked,
         "asked_similarity": float(similarity),
         "before": trajectory_motion(*before, t, cls),
         "after": trajectory_motion(*after, t, cls),
     }
+    for key, (x, v) in (("before", before), ("after", after)):
+        rec[key]["adherence"] = adherence_of(
+            prompt, x, v, t, mass=mass, gravity=gravity, floor=floor
+        )
+    return rec
 
 
 def motion_lines(rec: dict[str, Any]) -> list[str]:
@@ -81,4 +121,9 @@ def motion_lines(rec: dict[str, Any]) -> list[str]:
         b, a = rec["before"]["group"] == asked, rec["after"]["group"] == asked
         mark = " (as asked)" if a else (" (was as asked before)" if b else " (not as asked)")
     lines.append(f"  after refinement:  {said(rec['after'])}{mark}")
+    a0 = (rec["before"].get("adherence") or {}).get("score")
+    a1 = (rec["after"].get("adherence") or {}).get("score")
+    if a0 is not None and a1 is not None:
+        trend = "rose" if a1 > a0 + 0.005 else ("fell" if a1 < a0 - 0.005 else "held")
+        lines.append(f"  motion adherence (eval, 0..1): {a0:.2f} before, {a1:.2f} after ({trend})")
     return lines
