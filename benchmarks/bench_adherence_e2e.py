@@ -43,30 +43,33 @@ from motionphysics.priors.captions import GROUPS, group_prompt  # noqa: E402
 SCENES = ("real", "mesh", "builtin")
 
 
-def _scenes(tmp: Path, which: list[str]) -> dict[str, tuple[dict, str]]:
+def _scenes(tmp: Path, which: list[str], particles: int) -> dict[str, tuple[dict, str]]:
     """name -> (scene block, shape used for the prompt's noun)."""
     out: dict[str, tuple[dict, str]] = {}
     if "real" in which:
         if not REAL.is_file():
             raise SystemExit(f"{REAL}: the real capture is not there (leave out 'real')")
         block = {"source": str(REAL), "scale": 0.3, "translate": [0, 0, 0.3]}
-        out["donut (real 3DGS)"] = ({**block, "max_particles": 1500}, "torus")
+        out["donut (real 3DGS)"] = ({**block, "max_particles": particles}, "torus")
     if "mesh" in which:
         block = {"source": str(_mesh(tmp)), "scale": 0.3, "rotate": [["x", 70]]}
-        out["capsule (mesh)"] = ({**block, "translate": [0, 0, 0.3], "max_particles": 1500}, "rod")
+        out["capsule (mesh)"] = (
+            {**block, "translate": [0, 0, 0.3], "max_particles": particles},
+            "rod",
+        )
     if "builtin" in which:
         block = {"source": "builtin:duck", "scale": 0.3, "translate": [0, 0, 0.3]}
-        out["duck (builtin)"] = ({**block, "max_particles": 1500}, "duck")
+        out["duck (builtin)"] = ({**block, "max_particles": particles}, "duck")
     return out
 
 
-def _config(scene: dict, prompt: str) -> dict:
+def _config(scene: dict, prompt: str, grid: int, frames: int) -> dict:
     # No material block: the kb reads the prompt. No boundary_conditions: the default
     # frictional floor at z = 0 (what a user gets).
     return {
         "scene": scene,
         "prompt": prompt,
-        "sim": {"grid": 24, "frames": 16, "frame_dt": 0.05, "substeps": "auto"},
+        "sim": {"grid": grid, "frames": frames, "frame_dt": 0.05, "substeps": "auto"},
         "camera": {"azimuth": 30, "elevation": 15, "width": 96, "height": 96},
     }
 
@@ -111,17 +114,20 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES)
     ap.add_argument("--groups", nargs="+", default=list(GROUPS), choices=GROUPS)
     ap.add_argument("--phrasing", type=int, default=0, help="which held-out phrasing (0 or 1)")
+    ap.add_argument("--particles", type=int, default=1500, help="scene.max_particles")
+    ap.add_argument("--grid", type=int, default=24, help="sim.grid")
+    ap.add_argument("--frames", type=int, default=16, help="sim.frames (0.05 s apart)")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         out = args.out or tmp / "runs"
-        scenes = _scenes(tmp, args.scenes)
+        scenes = _scenes(tmp, args.scenes, args.particles)
         jobs = []
         for sname, (scene, shape) in scenes.items():
             for g in args.groups:
                 prompt = group_prompt(g, shape, args.phrasing)
-                cfg = _config(scene, prompt)
+                cfg = _config(scene, prompt, args.grid, args.frames)
                 tag = f"{sname.split()[0]}-{g}"
                 jobs.append(((sname, g, "kb"), cfg, out / f"{tag}-kb", []))
                 for seed in range(args.seeds):
