@@ -28,6 +28,7 @@ returned (its ``v`` is the initial-velocity gradient).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -91,13 +92,14 @@ class Rollout:
         self.tape_memory = int(default_tape_memory() if tape_memory is None else tape_memory)
         self.checkpoints: list[State] = []
         self._owner: Any = None  # the bridge call whose forward produced the checkpoints
-        self._scratch: dict[str, Any] | None = None  # backward buffers, reused across calls
-        # frame f -> (tape, states) recorded by forward(record_tapes=True) for the backward
-        self._kept: dict[int, tuple[Any, list[State]]] = {}
+        # frame f -> (tape, states, buffers) recorded by forward(record_tapes=True) for the backward
+        self._kept: dict[int, tuple[Any, list[State], dict]] = {}
 
     def release_scratch(self) -> None:
         """Free the state / grid buffers that :meth:`backward` keeps for its next call."""
-        self._scratch = None
+        ctx = getattr(self.solver, "_rollout_buffers", None)
+        if ctx is not None and ctx.get("owner") is not None and ctx["owner"]() is self:
+            self.solver._rollout_buffers = None
         self._kept = {}
 
     @property
@@ -106,19 +108,33 @@ class Rollout:
         return sorted(self._kept)
 
     def _context(self) -> dict[str, Any]:
-        """The backward's buffers (kept between calls: fresh ones cost page faults, ~5 ms
-        per substep at 20k particles, 64^3); :meth:`release_scratch` frees them."""
+        """The backward's and the recording forward's buffers (kept between calls: fresh
+        ones cost page faults, ~5 ms per substep at 20k particles, 64^3, and a refinement
+        allocating ~400 substeps of them spent ~1 s per iteration in ``wp.zeros``);
+        :meth:`release_scratch` frees them.
+
+        They belong to the solver, not to this rollout: a rollout made again for a new
+        substep count (``sim.substeps: auto`` re-resolved as E changes) reuses them. The
+        rollout that used them last owns them; when another one takes them, the tapes the
+        previous owner kept record into these buffers and are dropped (its next full
+        backward recomputes those frames from its checkpoints)."""
         m = self.model
         p = m.particle_count
-        ctx = self._scratch
+        ctx = getattr(self.solver, "_rollout_buffers", None)
         if ctx is None or ctx["particles"] != p:
-            ctx = self._scratch = {
+            ctx = self.solver._rollout_buffers = {
                 "particles": p,
+                "owner": None,
                 "work": State.zeros(p, m.device),
                 "scratch": State.zeros(p, m.device),
                 "sin": State.zeros(p, m.device, requires_grad=True),
                 "sout": State.zeros(p, m.device, requires_grad=True),
             }
+        owner = ctx["owner"]() if ctx["owner"] is not None else None
+        if owner is not self:
+            if owner is not None:
+                owner._kept = {}
+            ctx["owner"] = weakref.ref(self)
         return ctx
 
     # ----------------------------------------------------------------- forward
@@ -194,8 +210,9 @@ class Rollout:
             k0 = (f - 1) * S
             need = self._span_bytes(S, k0) if f >= first_taped else 0
             if f >= first_taped and used + need <= self.tape_memory:
-                tape, states = self._record(k0, k0 + S, a, self._slot(len(self._kept)))
-                self._kept[f] = (tape, states)
+                bufs = self._slot(len(self._kept))
+                tape, states = self._record(k0, k0 + S, a, bufs)
+                self._kept[f] = (tape, states, bufs)
                 used += need
                 a.assign(states[S])
             else:
@@ -288,10 +305,17 @@ class Rollout:
             self._start_state(k0, states[0], self._context())
         else:
             states[0].assign(start)
-        for s in states[: n + 1]:
+        # Only the buffers a backward may have left non-zero are zeroed (fresh ones are
+        # zero): a complete backward consumes every adjoint it reads (the adjoint kernels
+        # zero the output adjoints they take) except the first state's, which holds the
+        # result; ``bufs["dirty"]`` counts the leading states that may hold gradients (see
+        # _backward_span_taped). Zeroing all of them cost 10 memsets per substep.
+        dirty = max(int(bufs.get("dirty", 0)), 1)
+        for s in states[:dirty]:
             s.zero_grad()
-        for g in grids[:n]:
+        for g in grids[: dirty - 1]:
             g.zero_grad()
+        bufs["dirty"] = 0
         tape = self.wp.Tape()
         with tape:
             for i in range(n):
@@ -304,14 +328,18 @@ class Rollout:
         frame = self._kept_frame(k0, k1)
         kept = self._kept.pop(frame) if frame is not None else None
         if kept is not None:
-            tape, states = kept  # recorded by forward(record_tapes=True)
+            tape, states, bufs = kept  # recorded by forward(record_tapes=True)
         else:
-            tape, states = self._record(k0, k1, None, ctx)
+            bufs = ctx
+            tape, states = self._record(k0, k1, None, bufs)
+        # until the backward has run to its end, any of the span's buffers may hold gradients
+        bufs["dirty"] = max(int(bufs.get("dirty", 0)), n + 1)
         for f in State.FIELDS:
             wp.copy(getattr(states[n], f).grad, getattr(adj, f))
         tape.backward()
         for f in State.FIELDS:
             wp.copy(getattr(adj, f), getattr(states[0], f).grad)
+        bufs["dirty"] = 1  # every adjoint consumed but the first state's
         # Drop the tape without reset(): reset() would zero the parameters' gradients.
         tape.launches = []
 

@@ -176,6 +176,7 @@ class Solver:
         self._R_dummy = None  # R output of the elastic stress when nothing records it
         self._private: list = []  # the chunks' region-sized G2P adjoint buffers
         self.affine = None  # affine matrices of untaped substeps (see _affine)
+        self._rollout_buffers: dict | None = None  # the rollouts' tape buffers (Rollout._context)
         self.classes = tuple(int(c) for c in np.unique(model.material_class.numpy()))
         """Material class ids present (one stress kernel launch each)."""
 
@@ -337,7 +338,9 @@ class Solver:
         ``t`` [s] (time at the start of the substep) and ``substep`` (global index) are
         passed to the boundary hooks. ``state_in`` may be modified in place by
         ``apply_pre_p2g`` (imposed / frozen velocities). Under a ``wp.Tape``, pass a
-        ``grid`` made with ``make_grid(requires_grad=True)`` per recorded substep.
+        ``grid`` made with ``make_grid(requires_grad=True)`` per recorded substep (a grid
+        used again needs its adjoints at zero: a complete backward leaves them so, else call
+        ``grid.zero_grad()``).
         """
         wp = self.wp
         m = self.model
@@ -439,8 +442,10 @@ class Solver:
 
     def _affine(self, grid: Grid, requires_grad: bool):
         """The per-particle affine matrices of a substep: the grid's own array under a tape
-        (the tape reads it in backward; its adjoint zeroed here), else one reused array
-        (fresh ones cost page faults every substep)."""
+        (the tape reads it in backward), else one reused array (fresh ones cost page faults
+        every substep). Its adjoint is not zeroed here: it starts at zero, and a complete
+        backward consumes it (the stress adjoints zero what they read); after an
+        incomplete one, ``Grid.zero_grad`` does."""
         wp = self.wp
         p = self.model.particle_count
         tape = _active_tape()
@@ -450,8 +455,6 @@ class Solver:
             a = owner.affine = wp.empty(
                 p, dtype=wp.mat33, device=self.model.device, requires_grad=requires_grad
             )
-        elif a.grad is not None:
-            a.grad.zero_()
         return a
 
     def _elastic_stress(
