@@ -49,7 +49,7 @@ gpu-check:
 peers:
 	bash benchmarks/setup_peers.sh
 
-# The embedded motion prior from nothing (priors/MODEL_CARD.md): simulated training and
+# The embedded motion prior from nothing (priors/MODEL_CARD_motion.md): simulated training and
 # held-out clips, training, the held-out measures, the shippable weights. Resumable: rerun
 # after an interruption. PRIOR_DATA holds the clips and the training checkpoint.
 PRIOR_DATA ?= $(MOTIONPHYSICS_CACHE)/motion-prior

@@ -6,7 +6,7 @@ Rows: scene x method, where method is one of
 - ``naive``  PhysFlow-style unconstrained estimate (an LLM asked without ranges);
 - ``median`` every parameter at the median of its range (kb's class);
 - ``lmd`` / ``sds`` / ``flow``  kb init, then optimisation against a video prior with
-  that loss (``--prior tiny|cogvideox|modelscope [--prior-path DIR]``).
+  that loss (``--prior motion|cogvideox|modelscope [--prior-path DIR]``).
 
 Each row is a real ``motionphysics run`` of the example config with its ``material:``
 block removed (so the init backend decides the material), then ``motionphysics eval``;
@@ -15,7 +15,8 @@ from this build) is listed with the one-line reason instead of numbers.
 
     .venv/bin/python benchmarks/bench_ablation.py [--size small|full]
         [--scenes elastic_ball,sand_column] [--methods kb,naive,median,lmd,sds,flow]
-        [--prior tiny --prior-path DIR] [--iters N] [--md out.md] [--keep DIR]
+        [--prior motion|cogvideox|modelscope [--prior-path DIR]] [--iters N] [--md out.md]
+        [--keep DIR]
         [--clip DIR] [--viclip PTH]
 """
 
@@ -94,7 +95,7 @@ def run_row(scene: str, method: str, args, work: Path) -> dict:
             return {
                 "scene": scene,
                 "method": method,
-                "missing": "no prior: pass --prior tiny|cogvideox|modelscope",
+                "missing": "no prior: pass --prior motion|cogvideox|modelscope",
             }
         cmd += ["--init", "kb", "--prior", args.prior, "--loss", method]
         if args.prior_path:
@@ -156,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", choices=["small", "full"], default="small")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--methods", default=",".join(INIT_METHODS + LOSS_METHODS))
-    ap.add_argument("--prior", choices=["tiny", "cogvideox", "modelscope"], default=None)
+    ap.add_argument("--prior", choices=["motion", "cogvideox", "modelscope"], default=None)
     ap.add_argument("--prior-path", default=None)
     ap.add_argument("--iters", type=int, default=None)
     ap.add_argument("--clip", default=None)

@@ -137,9 +137,13 @@ def test_run_motion_prior_refines_each_object_with_its_phrase(tmp_path, capsys):
 
 
 def test_run_frames_prior_sees_the_whole_scene_with_the_whole_prompt(tmp_path):
+    # a prior that observes rendered frames: the tiny seeded ModelScope pipeline
+    from tests.priors.tiny_pipelines import tiny_dir
+
+    frames_prior = {"prior": "modelscope", "prior_path": str(tiny_dir("modelscope"))}
     p, _ = _run(
         tmp_path,
-        _config(BALL_UP, prior="tiny", iterations=1, frames=6, params={"cube": ["E"]}),
+        _config(BALL_UP, **frames_prior, iterations=1, frames=6, params={"cube": ["E"]}),
     )
     opt = p["optimise"]
     assert opt["object_prompts"] is None  # (a frames prior: one loss on the whole render)

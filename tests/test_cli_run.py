@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from tests.conftest import restore_sigint  # noqa: E402
 
 from motionphysics.cli import main
@@ -56,20 +57,31 @@ def test_not_yaml_mapping(tmp_path, capsys):
 
 
 def test_embedded_prior_refines_without_a_path(tmp_path):
-    # The embedded tiny prior ships with the package: --prior tiny needs no --prior-path.
+    # The embedded motion prior ships with the package: --prior motion needs no --prior-path.
     out = tmp_path / "o"
-    argv = ["run", str(TINY), "--prior", "tiny", "--loss", "lmd", "--iters", "1", "--out", str(out)]
+    argv = [
+        "run",
+        str(TINY),
+        "--prior",
+        "motion",
+        "--loss",
+        "lmd",
+        "--iters",
+        "1",
+        "--out",
+        str(out),
+    ]
     assert main([*argv, "--quiet"]) == 0
     recs = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
     assert len(recs) == 1 and math.isfinite(recs[0]["loss"])
     p = json.loads((out / "params.json").read_text())
-    assert p["optimise"]["prior"] == "tiny" and len(p["history"]) == 1
+    assert p["optimise"]["prior"] == "motion" and len(p["history"]) == 1
     # 8 frames and the default boost 8 would show the 16-frame prior one frame at a time:
     # the boost is capped to 1, every frame after the initial state is supervised
     assert p["optimise"]["boost_requested"] == 8 and p["optimise"]["boost"] == 1
     assert "boost" in p["optimise"]["boost_note"]
     assert recs[0]["frames"] == list(range(1, 8))
-    # the tiny prior's own lmd defaults (TinyPrior.loss_defaults), the negative prompt
+    # the motion prior's own lmd defaults (MotionPrior.loss_defaults), the negative prompt
     # derived from the prompt ("... bounces back" -> the opposite motion)
     lo = p["optimise"]["loss_options"]["lmd"]
     assert (lo["form"], lo["guidance"], lo["samples"], lo["negative_prompt"]) == (
@@ -96,7 +108,7 @@ def test_config_options_win_over_the_priors_loss_defaults(tmp_path):
         "run",
         str(cfg),
         "--prior",
-        "tiny",
+        "motion",
         "--iters",
         "1",
         "--guidance",
@@ -109,6 +121,52 @@ def test_config_options_win_over_the_priors_loss_defaults(tmp_path):
     # every option the config or --guidance sets is taken over the prior's default
     assert (lo["form"], lo["samples"], lo["negative_prompt_used"]) == ("absolute", 2, "")
     assert lo["guidance"] == 7.0
+
+
+REMOVED_TINY = (
+    "the embedded pixel prior was removed (it could not tell motions apart: 20 % held-out "
+    "caption discrimination)"
+)
+
+
+def test_prior_tiny_on_the_command_line_is_refused_in_one_line(tmp_path, capsys):
+    """The pixel prior (--prior tiny) was removed: the flag is refused with the reason and
+    the way out, before anything is simulated or written."""
+    out = tmp_path / "o"
+    rc = main(["run", str(TINY), "--prior", "tiny", "--iters", "1", "--out", str(out)])
+    assert rc == 2
+    assert _one_line_error(capsys) == (
+        f"motionphysics: error: --prior tiny: {REMOVED_TINY}; use --prior motion (the "
+        "embedded default) or --prior cogvideox/modelscope with a local model path "
+        "(--prior-path DIR)"
+    )
+    assert not out.exists()
+    # and the usage no longer offers it
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert "tiny" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", ["run", "simulate"])
+def test_a_config_asking_for_the_tiny_prior_is_refused_in_one_line(tmp_path, capsys, command):
+    import yaml
+
+    data = yaml.safe_load(TINY.read_text())
+    data["optimize"] = {"prior": "tiny", "iterations": 1}
+    cfg = tmp_path / "old.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "o"
+    assert main([command, str(cfg), "--out", str(out)]) == 2
+    assert _one_line_error(capsys) == (
+        f"motionphysics: error: {cfg}: optimize.prior: 'tiny': {REMOVED_TINY}; use "
+        "optimize.prior: motion (the embedded default) or cogvideox/modelscope with a local "
+        "model path (optimize.prior_path: DIR)"
+    )
+    assert not out.exists()
+    # --prior on the command line overrides the config's prior: then the run is accepted
+    if command == "run":
+        rc = main(["--quiet", "run", str(cfg), "--prior", "none", "--out", str(out)])
+        assert rc == 0 and (out / "params.json").is_file()
 
 
 def test_bad_params_file(tmp_path, capsys):

@@ -15,7 +15,7 @@ def test_loss_without_prior_is_an_error():
         check_run_flags(cfg, {"loss": "sds"})
     with pytest.raises(UserInputError, match=r"^--iters 2:"):
         check_run_flags(cfg, {"iters": 2})
-    assert check_run_flags(cfg, {"loss": "sds", "prior": "tiny"}) == []
+    assert check_run_flags(cfg, {"loss": "sds", "prior": "motion"}) == []
 
 
 def test_init_llm_with_every_field_given_is_named():

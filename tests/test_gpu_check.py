@@ -453,7 +453,7 @@ def test_table_of_a_full_report(tmp_path, capsys):
                 "status": "skipped",
                 "seconds": 3.0,
                 "limit_s": 90.0,
-                "error": "no `motion` prior in this build (priors: tiny, cogvideox, modelscope)",
+                "error": "no `motion` prior in this build (priors: cogvideox, modelscope)",
                 "result": {},
             },
         ],

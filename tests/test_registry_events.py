@@ -33,6 +33,23 @@ def test_registry_unknown_name_lists_choices_and_suggests():
     assert "lmd, sds" in msg
 
 
+def test_registry_removed_name_is_refused_with_its_reason_and_never_listed():
+    import argparse
+
+    reg = Registry("video prior", "optimize.prior", {"a": _Plugin}, removed={"old": "gone (why)"})
+    assert reg.names() == ["a"] and "old" not in reg
+    with pytest.raises(UserInputError) as err:
+        reg.get("old")
+    assert str(err.value) == "optimize.prior: 'old': gone (why); expected one of a"
+    # as argparse choices: the removed name reaches the command, the usage lists only "a"
+    choices = reg.choices("none")
+    assert list(choices) == ["none", "a"] and "old" in choices and "b" not in choices
+    p = argparse.ArgumentParser(prog="x")
+    p.add_argument("--prior", choices=choices)
+    assert p.parse_args(["--prior", "old"]).prior == "old"
+    assert "{none,a}" in p.format_usage()
+
+
 def test_registry_options_validate_strictly():
     reg = Registry("loss", "optimize.losses[0]", {"lmd": _Plugin})
     assert reg.options("lmd", {"weight": 2}).weight == 2.0

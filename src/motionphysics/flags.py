@@ -46,12 +46,12 @@ def check_run_flags(cfg, given: Mapping[str, Any], command: str = "run") -> list
     if given.get("loss") is not None and given["loss"] in PRIOR_LOSSES and prior == "none":
         raise UserInputError(
             f"--loss {given['loss']}: has no effect without a video prior (optimize.prior is "
-            "none, so nothing is optimised); add --prior tiny|cogvideox|modelscope, or drop --loss"
+            "none, so nothing is optimised); add --prior motion|cogvideox|modelscope, or drop --loss"
         )
     if given.get("iters") is not None and prior == "none" and not cfg.optimize.losses:
         raise UserInputError(
             f"--iters {given['iters']}: has no effect without a video prior (optimize.prior is "
-            "none, so nothing is optimised); add --prior tiny|cogvideox|modelscope"
+            "none, so nothing is optimised); add --prior motion|cogvideox|modelscope"
         )
     init = given.get("init")
     if init is not None and material_fully_given(cfg.material):

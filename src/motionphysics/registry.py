@@ -11,6 +11,10 @@ entry in the table its package passes in).
 A plug-in class may declare its own typed options as a nested pydantic model named
 ``Options`` (strict: ``extra="forbid"``, a docstring per field); :meth:`Registry.options`
 validates a mapping against it. This module must not import any plug-in at import time.
+
+A plug-in that was removed stays known by name (``removed``: name -> what happened to it
+and why), so asking for it is refused with that reason instead of "unknown"; it is in no
+list of choices.
 """
 
 from __future__ import annotations
@@ -22,9 +26,26 @@ from typing import Any, Generic, TypeVar
 
 from motionphysics.errors import UserInputError
 
-__all__ = ["Registry"]
+__all__ = ["Choices", "Registry"]
 
 T = TypeVar("T")
+
+
+class Choices(tuple):
+    """Values for an argparse ``choices``: iterating gives the valid names (the usage, the
+    help and argparse's "invalid choice" message list only those); membership also admits
+    the ``removed`` names, so the command receives them and refuses them in one line with
+    the reason, instead of argparse's usage and "invalid choice"."""
+
+    removed: frozenset[str]
+
+    def __new__(cls, names: Iterable[str], removed: Iterable[str] = ()):
+        self = super().__new__(cls, tuple(names))
+        self.removed = frozenset(removed)
+        return self
+
+    def __contains__(self, value: object) -> bool:
+        return value in self.removed or tuple.__contains__(self, value)
 
 
 class Registry(Generic[T]):
@@ -38,12 +59,24 @@ class Registry(Generic[T]):
         The config field or flag that names an entry ("optimize.loss"), for messages.
     entries:
         Initial ``name -> "module:attr" | object`` table.
+    removed:
+        ``name -> reason`` of plug-ins that no longer exist: the reason says what was
+        removed and why ("the embedded pixel prior was removed (...)"); :meth:`check`
+        refuses the name with it.
     """
 
-    def __init__(self, kind: str, field: str, entries: Mapping[str, str | T] | None = None):
+    def __init__(
+        self,
+        kind: str,
+        field: str,
+        entries: Mapping[str, str | T] | None = None,
+        removed: Mapping[str, str] | None = None,
+    ):
         self.kind = kind
         self.field = field
         self._entries: dict[str, str | T] = dict(entries or {})
+        self.removed: dict[str, str] = dict(removed or {})
+        """Removed plug-ins: name -> what was removed and why (not in :meth:`names`)."""
 
     def register(self, name: str, entry: str | T) -> None:
         """Add (or replace) ``name``; ``entry`` is ``"module:attr"`` or the object."""
@@ -58,11 +91,23 @@ class Registry(Generic[T]):
     def __contains__(self, name: object) -> bool:
         return name in self._entries
 
+    def choices(self, *first: str) -> Choices:
+        """argparse ``choices`` of this registry: ``first`` (e.g. ``none``), then the names;
+        removed names are admitted (not listed) so that the command can refuse them with
+        their reason."""
+        return Choices([*first, *self.names()], self.removed)
+
     def __iter__(self) -> Iterable[str]:
         return iter(self.names())
 
     def check(self, name: str) -> str:
-        """Return ``name`` if registered, else raise a one-line user error naming the choices."""
+        """Return ``name`` if registered, else raise a one-line user error naming the choices
+        (for a removed plug-in: why it was removed, then the choices)."""
+        if name in self.removed and name not in self._entries:
+            raise UserInputError(
+                f"{self.field}: {name!r}: {self.removed[name]}; "
+                f"expected one of {', '.join(self.names())}"
+            )
         if name not in self._entries:
             close = difflib.get_close_matches(str(name), self.names(), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""

@@ -107,15 +107,19 @@ def load_run_config(
 def check_plugins(cfg: RunConfig, origin: str = "<config>") -> None:
     """Plug-in names and options of ``cfg`` against the registries (one-line user errors).
 
-    ``optimize.prior`` (``none`` or a ``PRIORS`` name), ``optimize.loss`` and every
+    ``optimize.prior`` (``none`` or a ``PRIORS`` name; a removed one is refused with the
+    reason, :func:`motionphysics.priors.removed_prior`), ``optimize.loss`` and every
     ``optimize.losses[i]`` (a ``LOSSES`` name; its options validated by the loss's
     ``Options`` model through ``LOSSES.options``).
     """
     from motionphysics.losses import LOSSES
-    from motionphysics.priors import PRIORS
+    from motionphysics.priors import PRIORS, removed_prior
 
     opt = cfg.optimize
     try:
+        removed = removed_prior(opt.prior, "optimize.prior")
+        if removed is not None:
+            raise UserInputError(removed)
         if opt.prior != "none" and opt.prior not in PRIORS:
             import difflib
 

@@ -126,6 +126,11 @@ def test_changed_base_keeps_ids_and_changes_hashes(tmp_path):
         ("scene.source: [builtin:cube, 3]", ["axes.scene.source", "value 3", "scene.source"]),
         ("prompt.text: [a]", ["axes.prompt.text", '"a"', "prompt"]),
         ("optimize.prior: [none, magic]", ["axes.optimize.prior", '"magic"']),
+        # the removed pixel prior: refused with the reason, not as an unknown name
+        (
+            "optimize.prior: [none, tiny]",
+            ["axes.optimize.prior", '"tiny"', "pixel prior was removed", "use optimize.prior"],
+        ),
     ],
 )
 def test_bad_axis_key_or_value_is_exit_2_one_line(tmp_path, capsys, axes, expect):

@@ -160,8 +160,8 @@ def test_objects_config_errors():
 def test_refinement_of_several_objects_accepted_at_config_time():
     # (issue 25: run with a prior and fit optimise every object; tests/optimize/
     # test_objects_optimize.py and tests/test_cli_objects_*.py run them)
-    cfg = config_from_dict({"objects": [{"name": "a"}], "optimize": {"prior": "tiny"}})
-    assert cfg.optimize.prior == "tiny"
+    cfg = config_from_dict({"objects": [{"name": "a"}], "optimize": {"prior": "motion"}})
+    assert cfg.optimize.prior == "motion"
     with pytest.raises(UserInputError, match=r"optimize\.params: b not an object"):
         config_from_dict({"objects": [{"name": "a"}], "optimize": {"params": {"b": ["E"]}}})
 

@@ -38,7 +38,7 @@ def test_prior_boost_keeps_clips_long_enough_for_the_prior():
 
     # the paper: 150 frames, M = 8 -> 18 frames per subsequence, a 49-frame prior: kept
     assert prior_boost(150, 8, 49) == 8
-    # a 16-frame run and the 16-frame tiny prior: one subsequence of the 15 frames after
+    # a 16-frame run and the 16-frame motion prior: one subsequence of the 15 frames after
     # the initial state (M = 8 would give it clips of 1-2 frames)
     assert prior_boost(16, 8, 16) == 1
     assert prior_boost(40, 8, 16) == 2  # 2 x 19-20 frames; M = 3 would give 13

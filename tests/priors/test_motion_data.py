@@ -59,3 +59,27 @@ def test_a_clip_is_deterministic_per_seed():
     assert a["spec"] == b["spec"] and a["group"] == b["group"] and a["measures"] == b["measures"]
     assert a["x"].shape == (16, min(KEEP_PARTICLES, a["x"].shape[1]), 3)
     assert np.isfinite(a["F"]).all()
+
+
+def test_generation_keeps_shards_already_written_and_refuses_another_seed(tmp_path):
+    """``prior data`` resumes: a shard already on disk is kept as it is (nothing is
+    simulated for it), and the same OUT with another seed is refused (it would mix data
+    sets)."""
+    import json
+
+    from motionphysics.errors import UserInputError
+    from motionphysics.priors.motion_data import SHARD_SIZE, generate
+
+    out = tmp_path / "d"
+    out.mkdir()
+    shard = out / "shard-00000.npz"
+    np.savez(shard, marker=np.arange(3))
+    before = shard.stat().st_mtime_ns
+    done = []
+    meta = generate(out, SHARD_SIZE, seed=11, on_shard=lambda *a: done.append(a))
+    assert shard.stat().st_mtime_ns == before and list(np.load(shard)) == ["marker"]
+    assert done == [(1, 1, 0)] and meta["seed"] == 11 and meta["clips"] == SHARD_SIZE
+    assert json.loads((out / "dataset.json").read_text())["schema"] == "motionphysics.motion-data/1"
+    with pytest.raises(UserInputError, match="seed is 11 there but 12 was asked"):
+        generate(out, SHARD_SIZE, seed=12)
+    assert json.loads((out / "dataset.json").read_text())["seed"] == 11

@@ -78,3 +78,23 @@ def test_bench_runs_tiny_on_cpu():
         run_prior_bench("cogvideox-5b", True, "cpu", True, size="full")
     with pytest.raises(UserInputError, match="--model"):
         run_prior_bench("sora", True, "cpu", True)
+
+
+@pytest.mark.parametrize("target", ["prior", "iteration"])
+def test_bench_model_tiny_is_refused_in_one_line(capsys, target):
+    """The embedded pixel prior (``--model tiny``) was removed: exit 2, one line naming
+    what happened and what to bench instead; the usage no longer lists it."""
+    from motionphysics.cli import main
+
+    extra = ["--random-weights"] if target == "prior" else []
+    assert main(["bench", target, "--model", "tiny", *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"motionphysics: error: bench {target} --model tiny: the embedded pixel prior was "
+        "removed (it could not tell motions apart: 20 % held-out caption discrimination); "
+        "use --model cogvideox-5b, cogvideox-2b or modelscope (random weights)"
+    ]
+    with pytest.raises(SystemExit):
+        main(["bench", target, "--help"])
+    usage = capsys.readouterr().out
+    assert "--model {cogvideox-5b,cogvideox-2b,modelscope}" in usage and "tiny}" not in usage

@@ -1,20 +1,19 @@
-"""motionphysics prior data|train|eval|export: build the embedded priors.
+"""motionphysics prior data|train|eval|export: build the embedded motion prior.
 
---prior motion (the default): the motion prior, a diffusion model over per-frame
-motion features of simulated clips.
---prior tiny: the older pixel prior (rendered 32x32 clips).
+The motion prior is a diffusion model over per-frame motion features of simulated clips
+(--prior motion, the only choice: the pixel prior that --prior tiny built was removed,
+and asking for it is refused with the reason).
 
-prior data OUT       simulate training clips (motion: the states of a particle subset;
-                     tiny: rendered uint8 frames) into shards under OUT; deterministic
-                     per --seed, resumable (shards already there are kept), parallel
-                     over --workers.
+prior data OUT       simulate training clips (the states of a particle subset) into
+                     shards under OUT; deterministic per --seed, resumable (shards
+                     already there are kept), parallel over --workers.
 prior train DATA     train the prior on those shards for --budget-min minutes or
                      --steps steps; --resume continues a checkpoint exactly (weights,
                      EMA, optimiser, RNG, data position).
 prior eval CKPT DATA caption discrimination over the motion groups on held-out clips
-                     with held-out phrasings (motion: and, with --train-data, a
-                     text-free classifier on the features); prints JSON.
-prior export CKPT DST  the shippable weights of a motion checkpoint (EMA, statistics).
+                     with held-out phrasings (and, with --train-data, a text-free
+                     classifier on the features); prints JSON.
+prior export CKPT DST  the shippable weights of a checkpoint (EMA, statistics).
 
 The shipped weights and their measured limits are described in the model card
 beside them in the package (priors/, the model card file).
@@ -40,14 +39,21 @@ def _positive(kind):
     return parse
 
 
+def _check_prior(args) -> None:
+    """Refuse a removed prior (``--prior tiny``) in one line, before any work."""
+    from motionphysics.errors import UserInputError
+    from motionphysics.priors import removed_prior
+
+    refused = removed_prior(args.prior)
+    if refused:
+        raise UserInputError(refused)
+
+
 def _data(args) -> int:
+    from motionphysics.priors.motion_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
     from motionphysics.progress import Progress
 
-    if args.prior == "motion":
-        from motionphysics.priors.motion_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
-    else:
-        from motionphysics.priors.tiny_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
-
+    _check_prior(args)
     shapes = HELD_OUT_SHAPES if args.held_out_shapes else TRAIN_SHAPES
     with Progress(quiet=args.quiet, verbose=args.verbose) as progress:
         n_shards = None
@@ -72,21 +78,22 @@ def _data(args) -> int:
     return 0
 
 
-def _train_motion(args) -> int:
+def _train(args) -> int:
     from pathlib import Path
 
     from motionphysics.priors.motion_train import MotionTrainOptions, train
 
+    _check_prior(args)
     out = Path(args.out) if args.out else Path(args.data) / "motion_prior.pt"
     opts = MotionTrainOptions(
         budget_min=args.budget_min,
         max_steps=args.steps,
-        batch=args.batch or 64,
+        batch=args.batch,
         seed=args.seed,
         device=args.device,
         size="cuda" if args.device == "cuda" else "cpu",
         threads=args.threads,
-        contrast=0.5 if args.contrast is None else args.contrast,
+        contrast=args.contrast,
     )
 
     def log(text: str) -> None:
@@ -98,42 +105,13 @@ def _train_motion(args) -> int:
     return 0
 
 
-def _train(args) -> int:
-    from pathlib import Path
-
-    if args.prior == "motion":
-        return _train_motion(args)
-    from motionphysics.priors.tiny_train import TrainOptions, train
-
-    out = Path(args.out) if args.out else Path(args.data) / "tiny_prior.pt"
-    opts = TrainOptions(
-        budget_min=args.budget_min,
-        max_steps=args.steps,
-        batch=args.batch or 8,
-        seed=args.seed,
-        device=args.device,
-        size="cuda" if args.device == "cuda" else "cpu",
-        threads=args.threads,
-        reload_data=args.reload_data,
-        balance=not args.no_balance,
-        contrast=args.contrast or 0.0,
-    )
-
-    def log(text: str) -> None:
-        if not args.quiet:
-            print(text, file=sys.stderr, flush=True)
-
-    rec = train(args.data, out, opts, resume=args.resume, eval_data=args.eval_data, log=log)
-    print(json.dumps({"checkpoint": str(out), **rec}))
-    return 0
-
-
-def _eval_motion(args) -> int:
+def _eval(args) -> int:
     import torch
 
     from motionphysics.priors.motion import MotionPrior
     from motionphysics.priors.motion_train import discrimination, feature_classifier, prepare
 
+    _check_prior(args)
     torch.set_num_threads(args.threads or torch.get_num_threads())
     prior = MotionPrior.from_pretrained(args.checkpoint)
     held = prepare(args.data, held_out=True)
@@ -166,31 +144,6 @@ def _export(args) -> int:
     return 0
 
 
-def _eval(args) -> int:
-    import torch
-
-    if args.prior == "motion":
-        return _eval_motion(args)
-
-    from motionphysics.priors.tiny import TinyPrior
-    from motionphysics.priors.tiny_data import load_shards
-    from motionphysics.priors.tiny_train import discrimination
-
-    torch.set_num_threads(args.threads or torch.get_num_threads())
-    prior = TinyPrior.from_pretrained(args.checkpoint)
-    frames, measures, specs = load_shards(args.data)
-    res = discrimination(
-        prior,
-        frames,
-        measures,
-        specs,
-        held_out=not args.train_phrasings,
-        max_clips=args.max_clips,
-    )
-    print(json.dumps(res, indent=1))
-    return 0
-
-
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "prior",
@@ -203,7 +156,7 @@ def register(subparsers) -> None:
 
     d = sub.add_parser(
         "data",
-        help="simulate and render training clips into shards",
+        help="simulate training clips into shards",
         description="Simulate training clips into shards (deterministic per seed, resumable).",
     )
     _which(d)
@@ -220,28 +173,20 @@ def register(subparsers) -> None:
 
     t = sub.add_parser(
         "train",
-        help="train the tiny prior on shards",
+        help="train the motion prior on shards",
         description="Train the prior on shards, time- or step-budgeted and resumable.",
     )
     _which(t)
     t.add_argument("data", metavar="DATA", help="directory of shards (`prior data`)")
     t.add_argument("--budget-min", type=_positive(float), default=30.0, help="minutes to train")
     t.add_argument("--steps", type=_positive(int), default=None, help="stop at this many steps")
-    t.add_argument(
-        "--batch", type=_positive(int), default=None, help="clips per step (motion 64, tiny 8)"
-    )
+    t.add_argument("--batch", type=_positive(int), default=64, help="clips per step")
     t.add_argument("--seed", type=int, default=0, help="training seed (init, noise, order)")
     t.add_argument("--resume", action="store_true", help="continue the checkpoint at --out")
     t.add_argument(
         "--out",
         metavar="PATH",
-        help="checkpoint file (default DATA/motion_prior.pt or tiny_prior.pt)",
-    )
-    t.add_argument("--eval-data", metavar="DIR", help="held-out shards for the held-out metric")
-    t.add_argument(
-        "--reload-data",
-        action="store_true",
-        help="re-read DATA at epoch boundaries (train while `prior data` still runs)",
+        help="checkpoint file (default DATA/motion_prior.pt)",
     )
     t.add_argument(
         "--device", choices=("cpu", "cuda"), default="cpu", help="cuda trains a bigger model"
@@ -250,15 +195,10 @@ def register(subparsers) -> None:
     t.add_argument(
         "--contrast",
         type=float,
-        default=None,
+        default=0.5,
         metavar="W",
         help="weight of the caption-contrast hinge (own-group prompt must denoise better than "
-        "another group's, at the same noise); 0 = plain denoising (motion 0.5, tiny 0)",
-    )
-    t.add_argument(
-        "--no-balance",
-        action="store_true",
-        help="draw clips uniformly instead of balanced over the motion groups",
+        "another group's, at the same noise); 0 = plain denoising",
     )
     t.set_defaults(func=_train)
 
@@ -278,18 +218,18 @@ def register(subparsers) -> None:
     e.add_argument(
         "--train-data",
         metavar="DIR",
-        help="motion: training shards; adds a text-free classifier on the features",
+        help="training shards: adds a text-free classifier on the features",
     )
     e.add_argument(
         "--snapshot",
         metavar="FILE",
-        help="motion: write 8 held-out clips per group (features) there and score them",
+        help="write 8 held-out clips per group (features) there and score them",
     )
     e.set_defaults(func=_eval)
 
     x = sub.add_parser(
         "export",
-        help="shippable weights of a motion prior checkpoint",
+        help="shippable weights of a checkpoint",
         description="Write the shippable weights (EMA, feature statistics, meta) of a checkpoint.",
     )
     x.add_argument("checkpoint", metavar="CKPT", help="training checkpoint (`prior train`)")
@@ -299,9 +239,12 @@ def register(subparsers) -> None:
 
 
 def _which(p) -> None:
+    from motionphysics.priors import PRIORS
+    from motionphysics.registry import Choices
+
     p.add_argument(
         "--prior",
-        choices=("motion", "tiny"),
+        choices=Choices(("motion",), PRIORS.removed),
         default="motion",
-        help="which embedded prior (default motion)",
+        help="which embedded prior: motion, the only one (kept so scripts that name it work)",
     )

@@ -157,8 +157,12 @@ def _overrides(args) -> dict:
 def _main(args) -> int:
     from motionphysics.errors import UserInputError
     from motionphysics.flags import check_run_flags
+    from motionphysics.priors import removed_prior
     from motionphysics.runconfig import load_run_config
 
+    refused = removed_prior(args.prior) if args.prior else None
+    if refused:  # refused here, in the flag's terms (the config's check would name the field)
+        raise UserInputError(refused)
     cfg = load_run_config(args.config, _overrides(args))
     if args.loss is not None and cfg.optimize.prior == "none":
         raise UserInputError(
@@ -219,7 +223,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--prior",
-        choices=["none", *PRIORS.names()],
+        choices=PRIORS.choices("none"),
         help="video prior for the refinement (default: the config's, none)",
     )
     p.add_argument(

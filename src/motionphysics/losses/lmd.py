@@ -177,9 +177,10 @@ class LmdLoss(Loss):
         bounces high"), or ``auto``: the opposite motion with the prompt's subject
         (``priors.captions.contrast_prompt``; ``""`` when the prompt claims no motion).
         With ``form: classifier_score`` a contrasting prompt makes the loss the pairwise
-        contrast ``x̂0(prompt) − x̂0(negative)``: the form under which the tiny prior
-        ordered simulated parameter sweeps the right way (its model card; through
-        ``run`` it did not reach the direction bar)."""
+        contrast ``x̂0(prompt) − x̂0(negative)``: the motion prior's default
+        (``MotionPrior.loss_defaults``), and the form under which the removed pixel prior
+        ordered simulated parameter sweeps the right way (BENCHMARKS.md; through ``run``
+        it did not reach the direction bar)."""
         extractor_lr: float = Field(default=2e-5, ge=0.0)
         """AdamW learning rate of the online extractor (paper: 2e-5)."""
         ema_decay: float = Field(default=0.95, ge=0.0, le=1.0)

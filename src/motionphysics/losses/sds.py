@@ -66,9 +66,10 @@ class SdsLoss(Loss):
         bounces high"), or ``auto``: the opposite motion with the prompt's subject
         (``priors.captions.contrast_prompt``; ``""`` when the prompt claims no motion).
         With ``form: classifier_score`` a contrasting prompt makes the loss the pairwise
-        contrast ``ε̂(prompt) − ε̂(negative)``: the form under which the tiny prior
-        ordered simulated parameter sweeps the right way (its model card; through
-        ``run`` it did not reach the direction bar)."""
+        contrast ``ε̂(prompt) − ε̂(negative)``: the motion prior's default
+        (``MotionPrior.loss_defaults``), and the form under which the removed pixel prior
+        ordered simulated parameter sweeps the right way (BENCHMARKS.md; through ``run``
+        it did not reach the direction bar)."""
 
     def __init__(self, prior, prompt: str, options: SdsLoss.Options | None = None):
         self.opts = options or self.Options()

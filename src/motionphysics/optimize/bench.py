@@ -44,11 +44,12 @@ def run_iteration_bench(
     from motionphysics.losses.lmd import LmdLoss
     from motionphysics.optimize.boosting import frames_for_iteration
     from motionphysics.optimize.fit import build_problem
-    from motionphysics.optimize.prior_bench import build_random_prior
+    from motionphysics.optimize.prior_bench import build_random_prior, check_model
     from motionphysics.optimize.refine import PerturbedRenderer
     from motionphysics.runconfig import load_run_config
     from motionphysics.runtime import check_device, set_threads
 
+    check_model(model, "bench iteration")
     set_threads()
     path = config or str(files("motionphysics.commands") / "demo.yaml")
     cfg = load_run_config(path, {"device": device})
@@ -169,7 +170,10 @@ def _iteration(args) -> int:
 
 
 def register_target(sub) -> None:
-    from motionphysics.optimize.prior_bench import MODELS_BENCHED
+    from motionphysics.optimize.prior_bench import MODELS_BENCHED, MODELS_REMOVED
+    from motionphysics.registry import Choices
+
+    models = Choices(MODELS_BENCHED, MODELS_REMOVED)  # a removed one: refused in one line
 
     p = sub.add_parser(
         "prior",
@@ -182,7 +186,7 @@ def register_target(sub) -> None:
             "--size tiny is feasible."
         ),
     )
-    p.add_argument("--model", choices=MODELS_BENCHED, required=True, help="prior architecture")
+    p.add_argument("--model", choices=models, required=True, help="prior architecture")
     p.add_argument(
         "--random-weights",
         action="store_true",
@@ -211,7 +215,7 @@ def register_target(sub) -> None:
     p.add_argument("--config", metavar="FILE", help="run config (default: the demo)")
     p.add_argument(
         "--model",
-        choices=[m for m in MODELS_BENCHED if m != "tiny"],
+        choices=models,
         default="cogvideox-2b",
         help="prior architecture at tiny size with random weights (default cogvideox-2b)",
     )

@@ -23,9 +23,35 @@ import torch
 
 from motionphysics.errors import UserInputError
 
-__all__ = ["MODELS_BENCHED", "build_random_prior", "run_prior_bench"]
+__all__ = [
+    "MODELS_BENCHED",
+    "MODELS_REMOVED",
+    "build_random_prior",
+    "check_model",
+    "run_prior_bench",
+]
 
-MODELS_BENCHED = ("cogvideox-5b", "cogvideox-2b", "modelscope", "tiny")
+MODELS_BENCHED = ("cogvideox-5b", "cogvideox-2b", "modelscope")
+MODELS_REMOVED = ("tiny",)
+"""Models these benchmarks no longer offer (the embedded pixel prior, removed 2026-12-03):
+the ``--model`` choices admit them so that :func:`check_model` refuses them in one line."""
+
+
+def check_model(model: str, command: str) -> str:
+    """``model`` if ``command`` (``bench prior``, ``bench iteration``) can bench it, else a
+    one-line :class:`UserInputError` (a removed model: why, and what to use instead)."""
+    from motionphysics.priors import PRIORS
+
+    if model in MODELS_REMOVED:
+        raise UserInputError(
+            f"{command} --model {model}: {PRIORS.removed[model]}; use --model "
+            f"{', '.join(MODELS_BENCHED[:-1])} or {MODELS_BENCHED[-1]} (random weights)"
+        )
+    if model not in MODELS_BENCHED:
+        raise UserInputError(
+            f"{command} --model {model!r}: expected one of {', '.join(MODELS_BENCHED)}"
+        )
+    return model
 
 
 def _cls(name: str):
@@ -118,10 +144,7 @@ def run_prior_bench(
     """Time ``repeats`` prior iterations (after one warm-up) and report peak memory.
 
     Returns the result dict (also printed: one JSON line with ``json``, else a table)."""
-    if model not in MODELS_BENCHED:
-        raise UserInputError(
-            f"bench prior --model {model!r}: expected one of {', '.join(MODELS_BENCHED)}"
-        )
+    check_model(model, "bench prior")
     if not random_weights:
         raise UserInputError(
             "bench prior: only --random-weights is supported (nothing is downloaded)"
@@ -131,7 +154,7 @@ def run_prior_bench(
     dev = torch.device(device)
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise UserInputError("bench prior --device cuda: no CUDA device is available")
-    if size == "full" and dev.type != "cuda" and model != "tiny":
+    if size == "full" and dev.type != "cuda":
         raise UserInputError(
             f"bench prior --size full --model {model}: the published size needs a GPU "
             "(tens of GB, hours per iteration on a CPU); use --device cuda or --size tiny"
@@ -140,20 +163,7 @@ def run_prior_bench(
     from motionphysics.losses.lmd import LmdLoss
 
     t_build = time.perf_counter()
-    if model == "tiny":
-        from motionphysics.priors import load_prior
-
-        prior = load_prior("tiny", None, device=device)
-        params = sum(
-            p.numel()
-            for m in vars(prior).values()
-            if isinstance(m, torch.nn.Module)
-            for p in m.parameters()
-        )
-        if prior._text is None:
-            prior.set_prompt("bench")
-    else:
-        prior, params = build_random_prior(model, size, dev, resolution=resolution)
+    prior, params = build_random_prior(model, size, dev, resolution=resolution)
     prompt = prior.text.prompt
     loss = LmdLoss(prior, prompt, LmdLoss.Options(guidance=guidance))
     build_s = time.perf_counter() - t_build

@@ -159,7 +159,7 @@ def loss_guidance(cfg) -> list[dict]:
 def check_prior_path(cfg) -> None:
     """Check ``optimize.prior_path`` holds the prior's diffusers components (exit 2 with
     one line otherwise) before anything is written; priors without a directory layout
-    (``tiny``) check at load."""
+    (``motion``) check at load."""
     import importlib
 
     from motionphysics.priors import PRIORS

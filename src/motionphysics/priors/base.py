@@ -1,8 +1,8 @@
 """The one interface every diffusion motion prior implements (:class:`VideoPrior`).
 
 A prior declares what it observes (``observes``): ``frames`` (the rendered frames of the
-supervised subsequence: CogVideoX, ModelScope, the tiny pixel prior) or ``states`` (the
-simulated particle states of those frames: the embedded motion prior). It turns what it
+supervised subsequence: CogVideoX, ModelScope) or ``states`` (the simulated particle
+states of those frames: the embedded motion prior). It turns what it
 observes into latents (differentiably: :meth:`VideoPrior.encode` for frames,
 :meth:`VideoPrior.encode_states` for states), adds noise on its own schedule, and
 predicts both the clean latent x̂0 and the noise ε̂ from a noisy latent, with
@@ -151,7 +151,8 @@ class VideoPrior(ABC):
     simulated positions and deformation gradients of the supervised frames,
     :meth:`encode_states`; the loop then does not render for it)."""
     prediction_type: PredictionType
-    """What the network predicts: ``epsilon`` (ModelScope, tiny) or ``v_prediction`` (CogVideoX)."""
+    """What the network predicts: ``epsilon`` (ModelScope), ``v_prediction`` (CogVideoX) or
+    ``sample`` (the motion prior)."""
     num_frames: int
     """Frames per clip the prior is run at (rendered subsequences are resampled to this)."""
     height: int

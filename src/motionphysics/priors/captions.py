@@ -1,7 +1,7 @@
-"""Captions of the tiny prior's training clips, written from the MEASURED motion.
+"""Captions of the motion prior's training clips, written from the MEASURED motion.
 
 :func:`motion_group` puts a clip into one of the eight motion groups from the numbers
-of :func:`~motionphysics.priors.tiny_data.motion_measures` (rebound ratio, height and
+of :func:`~motionphysics.priors.motion_data.motion_measures` (rebound ratio, height and
 spread ratios, shape change, wobble count, late speed), or into ``None`` when the clip
 satisfies no group's conditions with a margin (those clips are captioned only with
 their object and material nouns and a neutral "falls" phrase, never with a motion
@@ -156,7 +156,7 @@ def object_noun(shape: str, k: int = 0) -> str:
 def motion_group(m: Mapping[str, float]) -> str | None:
     """The motion group of a clip from its measures, or None when none fits with a margin.
 
-    ``m``: :func:`~motionphysics.priors.tiny_data.motion_measures` plus ``granular``
+    ``m``: :func:`~motionphysics.priors.motion_data.motion_measures` plus ``granular``
     (1.0 for sand: "crumbles" is the granular word for a collapse). Ratios are over the
     first frame; ``deform`` is rotation-invariant (distance from the best rigid motion
     over the object size), so a tumbling rigid object is not read as squashed.
@@ -266,9 +266,10 @@ OPPOSITE: dict[str, str] = {
     "squashes_flat": "bounces_high",
 }
 """The motion group a prompt of each group is contrasted with. Soft motions (wobbles,
-squashes flat, barely bounces) are contrasted with the high bounce, the motion the tiny
-prior knows best (the largest of the solid groups in its data): against "keeps its
-shape" a "wobbly" prompt pushed E up on the real donut capture, as "bounces high" did."""
+squashes flat, barely bounces) are contrasted with the high bounce, the motion the pixel
+prior (since removed) knew best (the largest of the solid groups in its data): with it,
+against "keeps its shape" a "wobbly" prompt pushed E up on the real donut capture, as
+"bounces high" did. The motion prior kept this table."""
 
 MIN_MOTION_SIMILARITY = 0.45
 """Cosine similarity (MiniLM, mean-pooled) below which a prompt makes no motion claim of

@@ -5,8 +5,8 @@
 random subset of :data:`KEEP_PARTICLES` particles at the clip's :data:`CLIP_FRAMES` frames
 (``x`` float32 [N, T, K, 3] m, ``F`` float32 [N, T, K, 3, 3], ``v`` float16 [N, T, K, 3]
 m/s), the clip's frame times ``t`` [N, T] s, its ground height and gravity, the measured
-motion (``measures``, JSON: :func:`~motionphysics.priors.tiny_data.motion_measures` with
-speeds Froude-scaled, see :func:`clip_measures`) and the drawn ``specs`` (JSON). The
+motion (``measures``, JSON: :func:`motion_measures` with speeds Froude-scaled, see
+:func:`clip_measures`) and the drawn ``specs`` (JSON). The
 features the prior sees (:mod:`.motion_features`) are computed from these states when
 the data is loaded, so a change of the features never needs new simulations.
 
@@ -59,6 +59,8 @@ __all__ = [
     "draw_motion_spec",
     "generate",
     "load_clips",
+    "motion_measures",
+    "run_shards",
     "simulate_clip",
 ]
 
@@ -369,13 +371,73 @@ def simulate_clip(spec: MotionSpec) -> dict[str, Any]:
     }
 
 
-def clip_measures(x: np.ndarray, v: np.ndarray, t: np.ndarray, size: float | None = None):
-    """:func:`~motionphysics.priors.tiny_data.motion_measures` of a clip with the absolute
-    speed (``late_speed``) Froude-scaled to a :data:`REFERENCE_SIZE` object, so the
-    caption rules read a 1 cm drop and a 1 m drop alike. ``size``: the object's largest
-    side [m] (default: from the first frame)."""
-    from motionphysics.priors.tiny_data import motion_measures
+def _rigid_residual(a0: np.ndarray, b: np.ndarray) -> float:
+    """Mean distance [m] of ``b`` [P, 3] from the best rigid (Kabsch) motion of ``a0``."""
+    a = a0 - a0.mean(0)
+    c = b - b.mean(0)
+    u, _, vt = np.linalg.svd(c.T @ a)
+    d = np.sign(np.linalg.det(u @ vt))
+    r = u @ np.diag([1.0, 1.0, d]) @ vt
+    return float(np.linalg.norm(c - a @ r.T, axis=1).mean())
 
+
+def motion_measures(traj: dict[str, np.ndarray]) -> dict[str, float]:
+    """The measured motion of one clip (what the captions are written from).
+
+    ``traj``: ``x [T, P, 3]`` m, ``v [T, P, 3]`` m/s, ``t [T]`` s (equal particle masses;
+    z up). Keys: ``rebound`` (centroid rise after its lowest point / fall before it,
+    metrics.physical's rebound ratio), ``final_height`` / ``min_height`` (vertical
+    extent over the first frame's), ``spread`` / ``max_spread`` (horizontal spread over
+    the first frame's), ``deform`` / ``max_deform`` (final / largest mean distance from
+    the best rigid motion of frame 0, over the object size: rotation-invariant shape
+    change), ``wobble`` (number of reversals of the deformation after the first contact
+    with a swing over 0.008), ``late_speed`` (mean particle speed in the last quarter
+    [m/s]) and ``fell`` (centroid drop over object size).
+    """
+    from motionphysics.metrics.physical import physical_metrics
+
+    x = np.asarray(traj["x"], dtype=np.float64)
+    v = np.asarray(traj["v"], dtype=np.float64)
+    t = np.asarray(traj["t"], dtype=np.float64)
+    m = physical_metrics({"x": x, "v": v, "t": t, "gravity": np.array([0.0, 0.0, -9.8])})
+    T = x.shape[0]
+    size = max(float(np.ptp(x[0], axis=0).max()), 1e-9)
+    deform = np.array([_rigid_residual(x[0], x[i]) for i in range(T)]) / size
+    # wobble: reversals of the deformation signal after it first exceeds 0.005
+    wob = 0
+    on = np.nonzero(deform > 0.005)[0]
+    if on.size:
+        seg = deform[on[0] :]
+        last, direction = seg[0], 0
+        for val in seg[1:]:
+            if direction >= 0 and val < last - 0.008:
+                wob += direction > 0
+                direction, last = -1, val
+            elif direction <= 0 and val > last + 0.008:
+                wob += direction < 0
+                direction, last = 1, val
+            elif (direction >= 0 and val > last) or (direction <= 0 and val < last):
+                last = val
+    late = float(np.linalg.norm(v[-max(2, T // 4) :], axis=-1).mean())
+    return {
+        "rebound": float(m["rebound_ratio"]),
+        "final_height": float(m["final_height_ratio"]),
+        "min_height": float(m["min_height_ratio"]),
+        "spread": float(m["spread_ratio"]),
+        "max_spread": float(m["max_spread_ratio"]),
+        "deform": float(deform[-1]),
+        "max_deform": float(deform.max()),
+        "wobble": float(wob),
+        "late_speed": late,
+        "fell": float(m["centroid_drop"]) / size,
+    }
+
+
+def clip_measures(x: np.ndarray, v: np.ndarray, t: np.ndarray, size: float | None = None):
+    """:func:`motion_measures` of a clip with the absolute speed (``late_speed``)
+    Froude-scaled to a :data:`REFERENCE_SIZE` object, so the caption rules read a 1 cm
+    drop and a 1 m drop alike. ``size``: the object's largest side [m] (default: from the
+    first frame)."""
     x = np.asarray(x, dtype=np.float64)
     if size is None:
         size = float(np.ptp(x[0], axis=0).max())
@@ -517,8 +579,6 @@ def generate(
         "shard_size": SHARD_SIZE,
         "max_attempts": MAX_ATTEMPTS,
     }
-    from motionphysics.priors.tiny_data import run_shards
-
     return run_shards(
         out,
         meta,
@@ -530,6 +590,54 @@ def generate(
         workers,
         on_shard,
     )
+
+
+def run_shards(
+    out: Path,
+    meta: dict,
+    keys: tuple[str, ...],
+    make_shard,
+    seed: int,
+    clips: int,
+    shapes,
+    workers: int,
+    on_shard=None,
+) -> dict:
+    """Write ``out/dataset.json`` (refusing an OUT made with other ``keys`` values) and make
+    every shard of ``SHARD_SIZE`` clips with ``make_shard((out, seed, k, clips, shapes))``
+    (a module-level function: ``spawn`` workers pickle it), in this process or a pool of
+    ``workers``; ``on_shard(done, total, clips_in_shard)`` after each. Returns ``meta``.
+    """
+    from motionphysics.errors import UserInputError
+
+    mfile = out / "dataset.json"
+    if mfile.exists():
+        old = json.loads(mfile.read_text())
+        for key in keys:
+            if old.get(key) != meta[key]:
+                raise UserInputError(
+                    f"{mfile}: {key} is {old.get(key)!r} there but {meta[key]!r} was asked; "
+                    "use another OUT directory"
+                )
+    mfile.write_text(json.dumps(meta, indent=1))
+    n_shards = (clips + SHARD_SIZE - 1) // SHARD_SIZE
+    jobs = [(str(out), seed, k, clips, tuple(shapes)) for k in range(n_shards)]
+    done = 0
+    if workers <= 1:
+        for job in jobs:
+            _, n, _ = make_shard(job)
+            done += 1
+            if on_shard:
+                on_shard(done, n_shards, n)
+    else:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(workers) as pool:
+            for _, n, _ in pool.imap_unordered(make_shard, jobs):
+                done += 1
+                if on_shard:
+                    on_shard(done, n_shards, n)
+    return meta
 
 
 def load_clips(root: str | Path, *, max_shards: int | None = None) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Caption rules of the tiny prior on hand-made trajectories (a caption never contradicts
+"""Caption rules of the motion prior on hand-made trajectories (a caption never contradicts
 the motion that was measured)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 
 from motionphysics.priors.captions import GROUPS, HELD_OUT, NEUTRAL, TRAIN, caption_clip
 from motionphysics.priors.captions import motion_group as group_of
-from motionphysics.priors.tiny_data import motion_measures
+from motionphysics.priors.motion_data import motion_measures
 
 T, DT = 16, 0.05
 RNG = np.random.default_rng(0)
