@@ -248,20 +248,25 @@ def _launch(
                 "a recorded boundary launch was back-propagated twice; record the step again"
             )
         done.append(True)
-        # The incoming gradient (targets' .grad) is read by the store adjoint, which then
-        # zeroes it; the sources' adjoint accumulates into pooled scratch shaped like the
-        # saved sources, zeroed first, and is then copied over the targets' .grad on the
-        # launch domain.
+        # In place: each thread reads and writes only its own element, so the sources'
+        # adjoint can be the targets' .grad itself (on the launch domain: a view with the
+        # saved source's indexing). In the reverse pass a thread first reads the incoming
+        # gradient of its element (the store adjoint, which zeroes it) and then adds
+        # J^T of it into the same element (the source load's adjoint). No scratch, no copy.
         adj_saved = []
         adj_targets = []
-        for a, src in zip(targets, saved, strict=True):
+        for a in targets:
             if a.grad is None:
                 adj_saved.append(None)
                 adj_targets.append(None)
                 continue
-            g_in = _POOL.take(src.shape, src.dtype, src.device)
-            g_in.zero_()
-            adj_saved.append(g_in)
+            if grid_offset is None:
+                adj_saved.append(a.grad)
+            else:
+                o = [int(grid_offset[i]) for i in range(3)]
+                adj_saved.append(
+                    a.grad[o[0] : o[0] + dim[0], o[1] : o[1] + dim[1], o[2] : o[2] + dim[2]]
+                )
             adj_targets.append(a.grad)
         adj_inputs = [tape.get_adjoint(a) if isinstance(a, wp.array) else None for a in inputs]
         adj_extra = [tape.get_adjoint(a) for a in extra_outputs]
@@ -276,14 +281,7 @@ def _launch(
             adjoint=True,
             record_tape=False,
         )
-        for a, g in zip(targets, adj_saved, strict=True):
-            if g is None:
-                continue
-            if grid_offset is None:
-                wp.copy(a.grad, g)
-            else:
-                _region_copy(g, a.grad, dim, zero, grid_offset, device)
-        for buf in (*saved, *(g for g in adj_saved if g is not None)):
+        for buf in saved:
             _POOL.give(buf)
 
     tracked = [a for a in (*inputs, *targets) if isinstance(a, wp.array) and a.grad is not None]
