@@ -412,6 +412,34 @@ def _grid_update(
     grid_v[i + off[0], j + off[1], k + off[2]] = out
 
 
+@wp.kernel(enable_backward=False)
+def _grid_update_adjoint(
+    grid_mv: wp.array4d(dtype=wp.vec4),
+    chunks: int,
+    off: wp.vec3i,
+    adj_grid_v: wp.array3d(dtype=wp.vec3),
+    adj_grid_mv: wp.array4d(dtype=wp.vec4),
+):
+    # Hand-written adjoint of _grid_update (what Warp generates, without its replay):
+    # v = p / m + dt g at nodes with mass, so a_p = a_v / m, a_m = -(p . a_v) / m^2. Every
+    # chunk's private grid gets the same adjoint (q = sum of the chunks' q), ASSIGNED, not
+    # accumulated: the region's adjoint grids need no zeroing. The node velocity adjoint is
+    # consumed (zeroed), as in Warp's generated adjoint of a store.
+    i, j, k = wp.tid()
+    q = grid_mv[0, i, j, k]
+    if chunks > 1:
+        q = q + grid_mv[1, i, j, k]
+    m = q[3]
+    a_v = adj_grid_v[i + off[0], j + off[1], k + off[2]]
+    a = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    if m > GRID_MASS_EPS:
+        a_p = a_v / m
+        a = wp.vec4(a_p[0], a_p[1], a_p[2], 0.0 - wp.dot(wp.vec3(q[0], q[1], q[2]), a_v) / (m * m))
+    for c in range(chunks):
+        adj_grid_mv[c, i, j, k] = a
+    adj_grid_v[i + off[0], j + off[1], k + off[2]] = wp.vec3(0.0, 0.0, 0.0)
+
+
 CONTACT_NORMAL_EPS = wp.constant(1.0e-20)
 """Nodes whose mass-gradient normal is shorter than this [kg/cell] get no contact correction."""
 

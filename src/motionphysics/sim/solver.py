@@ -308,8 +308,26 @@ class Solver:
         ]
         tape.record_func(backward=backward, arrays=list({id(a): a for a in arrays}.values()))
 
-    def _region_grid(self, grid: Grid, shape: tuple[int, int, int]):
-        """A zeroed (chunks, *shape) vec4 array for ``grid`` (reused when the shape allows)."""
+    def _record_grid_update_adjoint(self, grid: Grid, mv, shape, wp_off) -> None:
+        """Record ``kernels._grid_update_adjoint`` for the grid update just launched."""
+        wp = self.wp
+        dev = self.model.device
+
+        def backward() -> None:
+            wp.launch(
+                _k._grid_update_adjoint,
+                dim=shape,
+                inputs=[mv, self.chunks, wp_off, grid.velocity.grad],
+                outputs=[mv.grad],
+                device=dev,
+                record_tape=False,
+            )
+
+        _active_tape().record_func(backward=backward, arrays=[mv, grid.velocity])
+
+    def _region_grid(self, grid: Grid, shape: tuple[int, int, int], zero_grad: bool = True):
+        """A zeroed (chunks, *shape) vec4 array for ``grid`` (reused when the shape allows);
+        its adjoint zeroed too unless ``zero_grad`` is False."""
         wp = self.wp
         full = (self.chunks * self.num_objects, *shape)
         mv = grid.mv
@@ -320,7 +338,7 @@ class Solver:
             )
         else:
             mv.zero_()
-            if mv.grad is not None:
+            if zero_grad and mv.grad is not None:
                 mv.grad.zero_()
         return mv
 
@@ -352,7 +370,10 @@ class Solver:
             m.boundary.apply_pre_p2g(m, state_in, t, substep, dt)
         off, shape = self._region(state_in)
         wp_off = wp.vec3i(*off)
-        grid.mv = mv = self._region_grid(grid, shape)
+        # under a tape, one object: the grid update records its hand-written adjoint, which
+        # assigns the whole region's momentum adjoint (so it is not zeroed here)
+        hand_grid = self.num_objects == 1 and grid.requires_grad and _active_tape() is not None
+        grid.mv = mv = self._region_grid(grid, shape, zero_grad=not hand_grid)
         grid.offset = off
         pr = m.params
 
@@ -414,7 +435,10 @@ class Solver:
                 inputs=[mv, self.chunks, self._gravity, dt, wp_off],
                 outputs=[grid.velocity],
                 device=m.device,
+                record_tape=not hand_grid,
             )
+            if hand_grid:
+                self._record_grid_update_adjoint(grid, mv, shape, wp_off)
         else:
             # one field per object, contact between them (kernels._make_contact_update)
             wp.launch(
