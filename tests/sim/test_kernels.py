@@ -640,3 +640,66 @@ def test_hand_written_grid_update_adjoint_matches_warps_generated_one(chunks):
     )
     np.testing.assert_array_equal(hand.numpy(), gen.numpy())
     assert not np.any(adj_v.numpy())
+
+
+def test_fused_p2g_and_elastic_stress_adjoint_matches_the_two_kernels():
+    """``_p2g_stress_elastic_adjoint`` (one pass, the affine matrix recomputed from the
+    stored rotation) against ``_p2g_adjoint`` followed by ``_stress_elastic_adjoint`` on
+    the affine matrices ``_stress_elastic`` stored, with random cotangents: the same
+    functions in the same order (bit-identical here; the tolerance leaves room for a
+    compiler contracting differently in the two kernels)."""
+    rng = np.random.default_rng(11)
+    P = 50
+    x, v, C, F = _random_state(rng, P, 0.3, 0.7)
+    C *= 0.1
+    lo, dx, dims, dt = wp.vec3(0.0, 0.0, 0.0), DX, wp.vec3i(*DIMS), 1e-3
+    off = wp.vec3i(2, 3, 1)
+    region = (1, 14, 13, 15)
+    xa, va, Ca, Fa = _arr(x, wp.vec3), _arr(v, wp.vec3), _arr(C, wp.mat33), _arr(F, wp.mat33)
+    ep = _arr(rng.uniform(0, 0.1, P), float)
+    active = _arr(np.ones(P), float)
+    vol = _arr(rng.uniform(1e-5, 3e-5, P), float)
+    rho = _arr(rng.uniform(400, 600, P), float)
+    E = _arr(rng.uniform(1e4, 1e5, P), float)
+    nu = _arr(rng.uniform(0.2, 0.4, P), float)
+    cls = wp.zeros(P, dtype=wp.int32)
+    oid = wp.zeros(P, dtype=wp.int32)
+    F_out, ep_out = wp.zeros(P, dtype=wp.mat33), wp.zeros(P, dtype=float)
+    A, R = wp.zeros(P, dtype=wp.mat33), wp.zeros(P, dtype=wp.mat33)
+    stress_in = [Ca, Fa, ep, active, vol, rho, cls, E, nu, dx, dt, 0]
+    wp.launch(K._stress_elastic, dim=P, inputs=[*stress_in, 1], outputs=[F_out, ep_out, A, R])
+    a_mv = _arr(rng.normal(size=(*region, 4)), wp.vec4)
+    a_F_out = rng.normal(size=(P, 3, 3))
+    a_ep_out = rng.normal(size=P)
+
+    def outs():
+        return [
+            wp.zeros(P, dtype=t) for t in (wp.vec3, wp.vec3, wp.mat33, wp.mat33, float, float)
+        ] + [wp.zeros(P, dtype=float), wp.zeros(P, dtype=float)]
+
+    # two kernels: x v C F ep density E nu
+    two = outs()
+    a_A = wp.zeros(P, dtype=wp.mat33)
+    p2g_in = [xa, va, A, active, vol, rho, lo, dx, dims, 0, 0, off, oid, 0]
+    wp.launch(K._p2g_adjoint, dim=P, inputs=[*p2g_in, a_mv], outputs=[two[0], two[1], a_A, two[5]])
+    wp.launch(
+        K._stress_elastic_adjoint,
+        dim=P,
+        inputs=[*stress_in, R, _arr(a_F_out, wp.mat33), _arr(a_ep_out, float), a_A],
+        outputs=[two[2], two[3], two[4], two[5], two[6], two[7]],
+    )
+    fused = outs()
+    adj_F_out, adj_ep_out = _arr(a_F_out, wp.mat33), _arr(a_ep_out, float)
+    wp.launch(
+        K._p2g_stress_elastic_adjoint,
+        dim=P,
+        inputs=[xa, va, Ca, Fa, R, active, vol, rho, E, nu, lo, dx, dt, dims, 0, 0, off, oid, 0,
+                a_mv, adj_F_out, adj_ep_out],
+        outputs=fused,
+    )  # fmt: skip
+    for name, got, want in zip("x v C F ep density E nu".split(), fused, two, strict=True):
+        g, e = got.numpy(), want.numpy()
+        np.testing.assert_allclose(g, e, rtol=1e-6, atol=1e-6 * np.abs(e).max(), err_msg=name)
+    assert np.any(fused[6].numpy())
+    # output adjoints consumed
+    assert not np.any(adj_F_out.numpy()) and not np.any(adj_ep_out.numpy())
