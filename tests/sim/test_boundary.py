@@ -744,3 +744,37 @@ def test_buffer_pool_reuses_and_stays_bounded():
     assert pool.take((10, 10, 10), wp.vec3, "cpu") is not a
     b = pool.take((15, 10, 10), wp.vec3, "cpu")
     assert b.shape == (15, 10, 10) and pool._bytes <= pool.cap
+
+
+@pytest.mark.parametrize(
+    "bc",
+    [
+        {"type": "bounding_box", "padding": 3, "friction": 0.3},
+        {"type": "surface_collider", "point": [0, 0, 0.1], "normal": [0.3, 0.2, 1.0],
+         "mode": "frictional", "friction": 0.5},
+        {"type": "surface_collider", "point": [0, 0.1, 0], "normal": [0, -1, 0], "mode": "slip"},
+        {"type": "surface_collider", "point": [0, 0, 0.0], "normal": [0, 0, 1], "mode": "sticky"},
+    ],
+)  # fmt: skip
+def test_grid_ops_are_skipped_only_on_boxes_where_they_are_the_identity(bc):
+    """``apply_grid`` skips an op on a region it cannot change (``_may_act`` False: walls
+    out of reach, every node in front of a collider plane). On every sub-box of the grid,
+    a skipped op's kernel (run on the full grid, in place) leaves the box's random
+    velocities unchanged, and the skip happens on some boxes and not on others."""
+    prog = program([bc])
+    kind = bc["type"] if bc["type"] == "bounding_box" else bc["mode"]
+    op = [o for o in prog._grid_ops if o.kind == kind][-1]
+    prog._grid_ops = [op]  # this op alone (not the domain walls)
+    v0 = random_grid(seed=3).astype(np.float32)
+    g = grid_array(v0)
+    prog.apply_grid(None, g, 0.0, 0, 1e-3)  # on the whole grid
+    out = g.numpy()
+    skipped = 0
+    for off in [(a, b, c) for a in range(0, 8, 2) for b in range(0, 8, 3) for c in range(0, 8, 2)]:
+        for size in (1, 2, 4):
+            dims = tuple(min(size, n - o) for o, n in zip(off, DIMS, strict=True))
+            if not prog._may_act(op, off, dims):
+                skipped += 1
+                box = tuple(slice(o, o + d) for o, d in zip(off, dims, strict=True))
+                assert np.array_equal(out[box], v0[box]), (off, dims)
+    assert 0 < skipped < 4 * 3 * 4 * 3

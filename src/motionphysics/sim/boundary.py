@@ -856,6 +856,8 @@ class BoundaryProgram:
         for op in self._grid_ops:
             if not op.window.active(t, substep, dt):
                 continue
+            if not self._may_act(op, off, dims):
+                continue
             s = op.scalars
             if op.kind == "clamp_grid":
                 _launch(
@@ -930,6 +932,28 @@ class BoundaryProgram:
                     [grid_v],
                     **kw,
                 )
+
+    def _may_act(self, op, off: tuple[int, ...], dims: tuple[int, ...]) -> bool:
+        """False when grid op ``op`` is the identity on every node of the box (``off``,
+        ``dims``), so its launch (and, under a tape, its saved copy and adjoint) is skipped:
+        walls whose layers the box does not reach, a collider plane every node of the box is
+        more than 2 % of a cell in front of (the kernel's contact tolerance is 1e-4 cells;
+        the margin dwarfs float32 round-off of the node positions). Exact: those kernels
+        write every such node unchanged and give it the identity adjoint."""
+        if op.kind == "bounding_box":
+            first, last = op.scalars["first"], op.scalars["last"]
+            return any(
+                off[a] <= first[a] or off[a] + dims[a] - 1 >= last[a] for a in range(3)
+            )
+        if op.kind in ("sticky", "slip", "frictional"):
+            n = np.asarray(op.scalars["normal"], dtype=np.float64)
+            q = np.asarray(op.scalars["point"], dtype=np.float64)
+            lo = np.asarray(self.domain_lo, dtype=np.float64)
+            box_lo = lo + np.asarray(off, dtype=np.float64) * self.dx
+            box_hi = lo + (np.asarray(off) + np.asarray(dims) - 1).astype(np.float64) * self.dx
+            nearest = np.where(n >= 0.0, box_lo, box_hi)  # the box corner deepest along -n
+            return float(np.dot(nearest - q, n)) <= 0.02 * self.dx
+        return True
 
     def apply_post_g2p(self, model, state_in, state_out, t: float, substep: int, dt: float) -> None:
         """Forces, imposed motion, frozen and removed particles on ``state_out`` (in place).
