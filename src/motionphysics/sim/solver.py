@@ -16,9 +16,7 @@ generated adjoints of the 27-node stencil loops cost 2-6x their forward. The ela
 (fixed corotated) stress runs ``kernels._stress_elastic`` (Newton polar rotation, 3-4x
 faster than the SVD) and, under a tape, stores the rotations for the SVD-free
 ``_stress_elastic_adjoint``; the other classes' stress kernels use Warp's generated adjoint
-(SVD included). When every particle is elastic, the recorded P2G and stress share one
-adjoint pass (``_p2g_stress_elastic_adjoint``), which recomputes the affine matrices
-instead of keeping them per substep; the grid update records ``_grid_update_adjoint``.
+(SVD included).
 
 On CPU, Warp runs a launch on one thread; with ``SolverConfig.threads = 2`` the
 particles are split in two chunks, the first launched from the caller's thread and the
@@ -88,8 +86,7 @@ class Grid:
     """Recorded substeps only: polar rotation of each elastic particle's trial F (P,) mat33,
     kept for the stress adjoint."""
     affine: Any = None
-    """Recorded substeps with other than elastic particles only: the substep's affine
-    matrices (P,) mat33 (see Solver.step; the fused elastic adjoint recomputes them)."""
+    """Recorded substeps only: the substep's affine matrices (P,) mat33 (see Solver.step)."""
     v_g2p: Any = None
     """Recorded substeps only: the particle velocities G2P gathered [m/s] (P,) vec3, before
     the post-G2P hooks edit ``state_out.v``; read by G2P's adjoint instead of re-gathering."""
@@ -380,11 +377,7 @@ class Solver:
         grid.offset = off
         pr = m.params
 
-        # all particles elastic, every adjoint buffer present: P2G and the stress record ONE
-        # fused adjoint (kernels._p2g_stress_elastic_adjoint), which recomputes the affine
-        # matrices, so they go to the solver's reused array and are not kept per substep
-        fused = self._fusable(state_in, state_out, grid)
-        affine = self._affine(grid, state_out.F.requires_grad and not fused)
+        affine = self._affine(grid, state_out.F.requires_grad)
 
         def stress_inputs(chunk: int, start: int) -> list:
             return [
@@ -429,14 +422,12 @@ class Solver:
         # chunks write disjoint particles and their own private grid: no shared adjoints
         for cid in self.classes:
             if cid == _k.ELASTIC_CLASS:
-                self._elastic_stress(
-                    stress_inputs, state_in, state_out, affine, grid, record=not fused
-                )
+                self._elastic_stress(stress_inputs, state_in, state_out, affine, grid)
                 continue
             self._launch_chunks(
                 _k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine]
             )
-        self._p2g(p2g_inputs, affine, mv, state_in, state_out if fused else None, grid, dt)
+        self._p2g(p2g_inputs, affine, mv, state_in)
         if self.num_objects == 1:
             wp.launch(
                 _k._grid_update,
@@ -473,28 +464,16 @@ class Solver:
         if m.boundary is not None:
             m.boundary.apply_post_g2p(m, state_in, state_out, t, substep, dt)
 
-    def _fusable(self, state_in: State, state_out: State, grid: Grid) -> bool:
-        """Whether this substep records the fused P2G + elastic stress adjoint: under a tape,
-        with a recorded grid, only elastic particles and every adjoint buffer it writes."""
-        if self.classes != (_k.ELASTIC_CLASS,) or not grid.requires_grad:
-            return False
-        if _active_tape() is None:
-            return False
-        pr = self.model.params
-        arrays = (state_in.x, state_in.v, state_in.C, state_in.F, state_in.ep, state_out.F)
-        arrays += (state_out.ep, pr["density"], pr["E"], pr["nu"])
-        return all(a.grad is not None for a in arrays)
-
     def _affine(self, grid: Grid, requires_grad: bool):
         """The per-particle affine matrices of a substep: the grid's own array under a tape
-        (the tape reads it in backward), else (no tape, or the fused adjoint, which
-        recomputes them) one reused array (fresh ones cost page faults every substep). Its adjoint is not zeroed here: it starts at zero, and a complete
+        (the tape reads it in backward), else one reused array (fresh ones cost page faults
+        every substep). Its adjoint is not zeroed here: it starts at zero, and a complete
         backward consumes it (the stress adjoints zero what they read); after an
         incomplete one, ``Grid.zero_grad`` does."""
         wp = self.wp
         p = self.model.particle_count
         tape = _active_tape()
-        owner = grid if (tape is not None and grid.requires_grad and requires_grad) else self
+        owner = grid if (tape is not None and grid.requires_grad) else self
         a = owner.affine
         if a is None or a.shape[0] != p or a.requires_grad != requires_grad:
             a = owner.affine = wp.empty(
@@ -503,7 +482,7 @@ class Solver:
         return a
 
     def _elastic_stress(
-        self, make_inputs, state_in: State, state_out: State, affine, grid: Grid, record=True
+        self, make_inputs, state_in: State, state_out: State, affine, grid: Grid
     ) -> None:
         """Stress of the elastic particles with ``kernels._stress_elastic`` (fast polar rotation).
 
@@ -511,7 +490,6 @@ class Solver:
         of each particle's trial F in ``grid.rotation`` and the backward launches the
         hand-written ``_stress_elastic_adjoint`` (R read back: no SVD) on the chunks' threads,
         or Warp's adjoint of ``_stress_elastic_replay`` when some adjoint buffers are missing.
-        ``record=False`` (the fused adjoint): R is stored, nothing is recorded.
         """
         wp = self.wp
         m = self.model
@@ -549,8 +527,6 @@ class Solver:
                 record_tape=False,
             )
         )
-        if not record:
-            return
         per_chunk = [inputs(c, start) for c, (start, _n) in enumerate(self._ranges)]
 
         pr = m.params
@@ -589,20 +565,13 @@ class Solver:
         arrays = [a for a in (*per_chunk[0], *outputs) if isinstance(a, wp.array)]
         tape.record_func(backward=backward, arrays=[a for a in arrays if a.grad is not None])
 
-    def _p2g(
-        self, make_inputs, affine, mv, state_in: State, fused_out=None, grid=None, dt=0.0
-    ) -> None:
+    def _p2g(self, make_inputs, affine, mv, state_in: State) -> None:
         """P2G scatter over the chunks; under a tape, records the hand-written adjoint
-        ``_p2g_adjoint`` (chunks read their own private adjoint grid, write disjoint
-        particles), or with ``fused_out`` (the substep's output state; see
-        :meth:`_fusable`) the fused P2G + elastic stress adjoint."""
+        ``_p2g_adjoint`` (chunks read their own private adjoint grid, write disjoint particles)."""
         wp = self.wp
         dev = self.model.device
         tape = _active_tape()
         density = self.model.params["density"]
-        if fused_out is not None:
-            self._p2g_fused(make_inputs, mv, state_in, fused_out, grid, dt)
-            return
         needed = [state_in.x, state_in.v, affine, density, mv]
         custom = tape is not None and all(a.grad is not None for a in needed)
         self._chunked(
@@ -632,65 +601,6 @@ class Solver:
             self._chunked(adj)
 
         tape.record_func(backward=backward, arrays=needed)
-
-    def _p2g_fused(self, make_inputs, mv, state_in: State, state_out: State, grid, dt) -> None:
-        """P2G scatter, recording ``kernels._p2g_stress_elastic_adjoint`` (the adjoints of the
-        P2G and of the elastic stress of the same substep, in one pass)."""
-        wp = self.wp
-        m = self.model
-        dev = m.device
-        pr = m.params
-        self._chunked(
-            lambda c, start, n: wp.launch(
-                _k._p2g,
-                dim=n,
-                inputs=make_inputs(c, start),
-                outputs=[mv],
-                device=dev,
-                record_tape=False,
-            )
-        )
-        R = grid.rotation
-        si, so = state_in, state_out
-        outputs = [si.x.grad, si.v.grad, si.C.grad, si.F.grad, si.ep.grad]
-        outputs += [pr[k].grad for k in ("density", "E", "nu")]
-
-        def backward() -> None:
-            def adj(c: int, start: int, n: int) -> None:
-                ins = make_inputs(c, start)  # x v affine active volume density lo dx dims ...
-                wp.launch(
-                    _k._p2g_stress_elastic_adjoint,
-                    dim=n,
-                    inputs=[
-                        si.x,
-                        si.v,
-                        si.C,
-                        si.F,
-                        R,
-                        si.active,
-                        m.volume,
-                        pr["density"],
-                        pr["E"],
-                        pr["nu"],
-                        self._lo,
-                        m.dx,
-                        dt,
-                        self._dims,
-                        *ins[9:14],  # p_offset chunk off object_id obj_stride
-                        mv.grad,
-                        so.F.grad,
-                        so.ep.grad,
-                    ],
-                    outputs=outputs,
-                    device=dev,
-                    record_tape=False,
-                )
-
-            self._chunked(adj)
-
-        arrays = [si.x, si.v, si.C, si.F, si.ep, so.F, so.ep, mv]
-        arrays += [pr[k] for k in ("density", "E", "nu")]
-        _active_tape().record_func(backward=backward, arrays=arrays)
 
     def _g2p(self, state_in: State, grid: Grid, state_out: State, dt: float) -> None:
         """G2P over the chunks; under a tape, records the hand-written adjoint ``_g2p_adjoint``
