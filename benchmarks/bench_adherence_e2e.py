@@ -85,13 +85,27 @@ def _cli(args: list[str]) -> subprocess.CompletedProcess:
     return r
 
 
-def _run(cfg: dict, out: Path, extra: list[str]) -> dict:
+def _done(out: Path, text: str, extra: list[str]) -> bool:
+    """A complete, evaluated run of the same config and flags is already in ``out``."""
+    try:
+        same = (out / "config.yaml").read_text() == text
+        same = same and (out / "flags.json").read_text() == json.dumps(extra)
+        p = json.loads((out / "run" / "params.json").read_text())
+        return same and p.get("status") == "complete" and (out / "run" / "metrics.json").is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def _run(cfg: dict, out: Path, extra: list[str], reuse: bool = False) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "config.yaml"
-    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    text = yaml.safe_dump(cfg, sort_keys=False)
     t0 = time.perf_counter()
-    _cli(["run", str(path), "--out", str(out / "run"), "--force", "--quiet", *extra])
-    _cli(["eval", str(out / "run"), "--quiet"])
+    if not (reuse and _done(out, text, extra)):
+        path.write_text(text)
+        (out / "flags.json").write_text(json.dumps(extra))
+        _cli(["run", str(path), "--out", str(out / "run"), "--force", "--quiet", *extra])
+        _cli(["eval", str(out / "run"), "--quiet"])
     p = json.loads((out / "run" / "params.json").read_text())
     m = json.loads((out / "run" / "metrics.json").read_text())
     adh = m.get("motion_adherence") or {}
@@ -118,6 +132,9 @@ def main() -> None:
     ap.add_argument("--grid", type=int, default=24, help="sim.grid")
     ap.add_argument("--frames", type=int, default=16, help="sim.frames (0.05 s apart)")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument(
+        "--reuse", action="store_true", help="keep complete runs of the same config in --out"
+    )
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -136,7 +153,9 @@ def main() -> None:
                     extra = ["--prior", "motion", "--loss", "lmd", "--iters", str(args.iters)]
                     jobs.append(((sname, g, seed), c, out / f"{tag}-s{seed}", extra))
         with ThreadPoolExecutor(args.workers) as pool:
-            futs = {key: pool.submit(_run, cfg, o, extra) for key, cfg, o, extra in jobs}
+            futs = {
+                key: pool.submit(_run, cfg, o, extra, args.reuse) for key, cfg, o, extra in jobs
+            }
             res = {}
             for key, f in futs.items():
                 try:
