@@ -229,18 +229,25 @@ class Rollout:
     # ---------------------------------------------------------------- backward
     def _span_bytes(self, n: int, k0: int) -> int:
         """Estimated memory [bytes] of recording substeps k0 .. k0+n-1 on one tape: per substep
-        a full node-velocity grid, the region-sized vec4 grids (the particles' current region,
-        x1.5 for growth), the state and the affine matrices, values and adjoints, and the
-        stored rotations of the elastic stress and G2P's velocities."""
+        the touched pages of the node-velocity grid, the region-sized vec4 grids (the
+        particles' current region, x1.5 for growth), the state and the affine matrices,
+        values and adjoints, and the stored rotations of the elastic stress and G2P's
+        velocities."""
         m = self.model
         nodes = int(np.prod(m.grid_dims))
         region = nodes
+        touched = nodes  # node-velocity entries whose pages a substep touches
         c = k0 // self.substeps
         if c < len(self.checkpoints):
             _, shape = self.solver._region(self.checkpoints[c])
             region = min(nodes, int(1.5 * np.prod(shape)))
+            if self.solver.num_objects == 1 and self.wp.get_device(m.device).is_cpu:
+                # an uninitialised grid (Solver.make_grid): per x-slab of the region, the
+                # rows from its first to its last y (whole z rows), x1.5 for growth
+                nz = int(m.grid_dims[2])
+                touched = min(nodes, int(1.5 * shape[0] * (shape[1] + 1) * nz))
         state = m.particle_count * (12 + 12 + 36 + 36 + 4 + 4 + 36)
-        grid = nodes * 12 + region * 16 * self.solver.chunks
+        grid = touched * 12 + region * 16 * self.solver.chunks
         # elastic stress: the stored polar rotations; G2P: its gathered velocities
         stored = m.particle_count * (36 + 12)
         return n * (2 * (grid + state) + stored)
