@@ -171,3 +171,15 @@ def test_keys_with_control_characters_stay_on_one_line(key):
         config_from_dict({key: 1}, "c.yaml")
     msg = str(err.value)
     assert msg.isprintable() and msg.startswith("c.yaml: ") and "unknown key" in msg
+
+
+def test_an_unknown_key_of_any_length_stays_one_short_line():
+    """Found by the property test: a 3-character key of astral-plane characters, escaped
+    twice in the line, pushed the unknown-key line of optimize to 400 characters."""
+    from motionphysics.config import config_from_dict
+    from motionphysics.errors import UserInputError
+
+    with pytest.raises(UserInputError) as e:
+        config_from_dict({"optimize": {"\U00018cd6\U0002ebe1\U0002ebe1": 1}}, "cfg.yaml")
+    msg = str(e.value)
+    assert "unknown key" in msg and "\n" not in msg and len(msg) < 400, msg

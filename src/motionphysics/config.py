@@ -782,9 +782,15 @@ def _walk(loc: tuple[Any, ...]) -> tuple[str, type[BaseModel] | None, Any]:
 
 
 def _key(item: Any) -> str:
-    """A key as it can be shown on one line (control characters and blanks escaped)."""
+    """A key as it can be shown on one line (control characters and blanks escaped, at most
+    :data:`KEY_SHOWN` characters: an error line stays one short line whatever the key)."""
     text = str(item)
-    return text if text.isprintable() and text.strip() == text and text else repr(text)
+    shown = text if text.isprintable() and text.strip() == text and text else repr(text)
+    return shown if len(shown) <= KEY_SHOWN else shown[: KEY_SHOWN - 3] + "..."
+
+
+KEY_SHOWN = 20
+"""Characters of a key shown in an error line."""
 
 
 def _show(value: Any) -> str:
