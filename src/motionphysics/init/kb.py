@@ -91,13 +91,12 @@ SPECIFICITY = 0.1
 """Added per extra token of a matched alias ("wet sand" > "sand")."""
 CUE_WEIGHT = 0.25
 """Behaviour cue words ("bounces", "splashes", "oozes"); once per class."""
-MOTION_WEIGHT = 2.0
+MOTION_WEIGHT = 1.0
 """Class score added by the motion reading of a prompt in which no word names a material,
-a class or a cue, at most a shape or what a thing depicts (:func:`_motion_reading`: "a ring
-jumps right back up", "a duck splatters across the floor"): more than such a word with its
-first-phrase bonus and any similarity (1.3 + < 0.7), less than a class word (3), so the
-motion's class is chosen; the evidence stays semantic or generic (low confidence, said in
-a warning). A material-bearing object ("a rubber ball squashes") keeps its material."""
+an object, a class or a cue (:func:`_motion_reading`: "a ring jumps right back up"): more
+than any similarity can add, so the motion's class is chosen; the evidence stays semantic
+(low confidence, said in a warning). A prompt that names an object keeps the object's
+material ("a duck disintegrates into a pile" stays the kb's duck)."""
 FIRST_BONUS = 0.3
 """The first material-bearing phrase is usually the subject: the simulated object."""
 MADE_OF_FACTOR = 1.3
@@ -954,14 +953,6 @@ class KBMatcher:
             out.append({"word": m.word, "steps": dict(m.steps), "how": m.how})
         return out
 
-    def _only_generic(self, sp: _Span, toks: list[str]) -> bool:
-        """True when every kb entry ``sp`` matched names a shape or what a thing depicts
-        (``GENERIC_WORDS``, ``GENERIC_ENTRIES``), not a material."""
-        words = set(" ".join(toks[sp.start : sp.end]).split())
-        return all(
-            self.kb.entries[i].name in GENERIC_ENTRIES or words <= GENERIC_WORDS for i in sp.kb
-        )
-
     def _is_substance(self, sp: _Span) -> bool:
         return bool(sp.explicit) or any(self.kb.entries[i].kind == "substance" for i in sp.kb)
 
@@ -1021,11 +1012,8 @@ class KBMatcher:
             for c in sp.cues:
                 cues[c] = CUE_WEIGHT
         motion = None
-        if not any(
-            sp.explicit or sp.cues or sp.muted or not self._only_generic(sp, toks) for sp in spans
-        ):
-            # No word names a class or a material (at most a shape or what a thing depicts:
-            # "a duck", "a ball"): the motion words may say what it is made of.
+        if not any(sp.kb or sp.explicit or sp.cues or sp.muted for sp in spans):
+            # No word names a class: the motion words may say what it is made of.
             motion = _motion_reading(prompt)
             if motion is not None:
                 cues[motion[0]] = MOTION_WEIGHT
