@@ -91,12 +91,6 @@ SPECIFICITY = 0.1
 """Added per extra token of a matched alias ("wet sand" > "sand")."""
 CUE_WEIGHT = 0.25
 """Behaviour cue words ("bounces", "splashes", "oozes"); once per class."""
-MOTION_WEIGHT = 1.0
-"""Class score added by the motion reading of a prompt in which no word names a material,
-an object, a class or a cue (:func:`_motion_reading`: "a ring jumps right back up"): more
-than any similarity can add, so the motion's class is chosen; the evidence stays semantic
-(low confidence, said in a warning). A prompt that names an object keeps the object's
-material ("a duck disintegrates into a pile" stays the kb's duck)."""
 FIRST_BONUS = 0.3
 """The first material-bearing phrase is usually the subject: the simulated object."""
 MADE_OF_FACTOR = 1.3
@@ -1011,12 +1005,6 @@ class KBMatcher:
                 explicit_words.append(words)
             for c in sp.cues:
                 cues[c] = CUE_WEIGHT
-        motion = None
-        if not any(sp.kb or sp.explicit or sp.cues or sp.muted for sp in spans):
-            # No word names a class: the motion words may say what it is made of.
-            motion = _motion_reading(prompt)
-            if motion is not None:
-                cues[motion[0]] = MOTION_WEIGHT
         entry_score = entry_sim + lexical
         class_scores: dict[str, float] = {}
         best_entry: dict[str, int] = {}
@@ -1031,14 +1019,6 @@ class KBMatcher:
         scores = np.array([class_scores[c] for c in MATERIAL_CLASSES])
         p = np.exp((scores - scores.max()) / TEMPERATURE)
         separation = float(p[MATERIAL_CLASSES.index(cls)] / p.sum())
-        if motion is not None and cls == motion[0]:
-            # the motion's own material ("splashes" -> water), not the nearest by meaning
-            named = [
-                i
-                for i in self.kb.by_class(cls)
-                if self.kb.entries[i].name == MOTION_ENTRY[motion[1]]
-            ]
-            best_entry[cls] = named[0] if named else best_entry[cls]
         j = best_entry[cls]
         chosen = self.kb.entries[j]
         words = matched_words.get(int(j))
@@ -1066,18 +1046,7 @@ class KBMatcher:
         understood = list(dict.fromkeys(w for _, w in known))
         names_class = any(sp.kb or sp.explicit or sp.cues or sp.muted for sp in spans)
         warnings: list[str] = []
-        if motion is not None:
-            # No word names a class, but the motion words read as one motion group
-            # (MiniLM against the training phrasings): that group's class, said so.
-            mcls, group, sim, clause = motion
-            names_class = True
-            understood.append(clause)
-            warnings.append(
-                f"kb: no word of the prompt names a material; '{clause}' reads as the "
-                f"motion '{group.replace('_', ' ')}' (similarity {sim:.2f}) -> {mcls} "
-                f"({chosen.name}); name the material for a surer estimate"
-            )
-        elif confidence < CONFIDENCE_THRESHOLD:
+        if confidence < CONFIDENCE_THRESHOLD:
             if words is not None:
                 warnings.append(
                     f"not sure: matched '{words}' -> {chosen.name} ({cls}, confidence "
@@ -1119,36 +1088,6 @@ class KBMatcher:
             names_class,
             used,
         )
-
-
-MOTION_ENTRY = {
-    "bounces_high": "rubber",
-    "barely_bounces": "rubber",
-    "wobbles": "jelly",
-    "splashes": "water",
-    "oozes": "honey",
-    "keeps_shape": "steel",
-    "crumbles": "dry sand",
-    "squashes_flat": "plasticine",
-}
-"""The kb entry a motion reading takes its values from (its class: ``captions.GROUP_CLASS``)."""
-
-
-def _motion_reading(prompt: str) -> tuple[str, str, float, str] | None:
-    """``(class, motion group, similarity, clause)`` of a prompt that names no material but
-    describes a motion ("a ring jumps right back up after hitting the floor" -> elastic,
-    bounces high), or None (no clause is near a motion group's training phrasings, or the
-    prompt is mostly not English: the encoder reads English)."""
-    if mostly_not_english(prompt):
-        return None
-    from motionphysics.priors.captions import GROUP_CLASS, prompt_motion_reading
-
-    group, sim, clause = prompt_motion_reading(
-        prompt, held_out_anchors=False, whole_if_no_verb=True
-    )
-    if group is None:
-        return None
-    return GROUP_CLASS[group], group, float(sim), clause
 
 
 def _strip_leading(words: Sequence[str]) -> tuple[str, ...]:
