@@ -11,10 +11,13 @@ default ``benchmarks/.venv-peers``). Each reports particle-substeps per second (
 of ``--repeats`` runs after a warm-up that excludes compilation); this script prints a
 Markdown table with the ratios and the end-of-run centre of mass of each engine (the
 three integrate the same scene, so it must agree: a cheap check that the timed work is
-the same physics). With ``--rounds R`` the three are alternated R times and the best
-median of each is kept, which damps interference from other load on a shared machine.
+the same physics). With ``--rounds R`` the engines are alternated R times (one process
+per engine per round); the table gives, per engine, the median over the rounds of the
+per-round medians (and the best), and ``ours / engine`` is the median over rounds of the
+ratio within each round (both engines measured minutes apart, under the same load), so a
+load spike in one round does not decide the ratio.
 
-    python benchmarks/bench_mpm.py --particles 20000 --substeps 100 --repeats 5
+    python benchmarks/bench_mpm.py --particles 20000 --substeps 100 --repeats 5 --rounds 3
 """
 
 from __future__ import annotations
@@ -22,8 +25,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -108,53 +113,85 @@ def main() -> int:
             str(args.threads),
         ],
     }
-    best: dict[str, dict] = {}
+    rounds: dict[str, list[dict]] = {name: [] for name in engines}
+    load: list[float] = []
+    t0 = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
     for _ in range(max(1, args.rounds)):
         for name in engines:
             if name != "motionphysics" and not peers_ok:
-                best[name] = {
+                res = {
                     "error": f"peers environment missing ({args.peers_python}); "
                     "run benchmarks/setup_peers.sh"
                 }
-                continue
-            res = _run(cmds[name], env)
-            prev = best.get(name)
-            if (
-                prev is None
-                or "error" in prev
-                or (
-                    "error" not in res
-                    and res["particle_substeps_per_s"] > prev["particle_substeps_per_s"]
-                )
-            ):
-                best[name] = res
+            else:
+                load.append(os.getloadavg()[0])
+                res = _run(cmds[name], env)
+            rounds[name].append(res)
+    load.append(os.getloadavg()[0])
+    t1 = time.strftime("%H:%M:%S UTC", time.gmtime())
 
-    ours = best.get("motionphysics", {}).get("particle_substeps_per_s")
+    def _ok(name: str) -> list[dict]:
+        return [r for r in rounds[name] if "error" not in r]
+
+    summary: dict[str, dict] = {}
+    for name in engines:
+        good = _ok(name)
+        if not good:
+            summary[name] = {"error": rounds[name][-1].get("error", "no result")}
+            continue
+        rates = [r["particle_substeps_per_s"] for r in good]
+        summary[name] = {
+            **good[-1],
+            "rates_per_round": rates,
+            "particle_substeps_per_s": statistics.median(rates),
+            "best_particle_substeps_per_s": max(rates),
+        }
+    ours_rounds = rounds.get("motionphysics", [])
+    for name in engines:
+        if name == "motionphysics" or "error" in summary[name]:
+            continue
+        per_round = [
+            o["particle_substeps_per_s"] / e["particle_substeps_per_s"]
+            for o, e in zip(ours_rounds, rounds[name], strict=True)
+            if "error" not in o and "error" not in e
+        ]
+        summary[name]["ours_over_engine_per_round"] = per_round
+        if per_round:
+            summary[name]["ours_over_engine"] = statistics.median(per_round)
+
     print(
         f"MPM benchmark: {args.particles} particles requested, grid {args.grid}^3, "
-        f"{args.substeps} substeps/run, {args.repeats} runs (+warm-up), {args.threads} threads, "
-        f"best of {args.rounds} round(s)\n"
+        f"{args.substeps} substeps/run, {args.repeats} runs (+warm-up) per process, "
+        f"{args.threads} threads, {args.rounds} alternated round(s), {t0} - {t1}, "
+        f"1-min load average {min(load):.1f}-{max(load):.1f}\n"
     )
-    print("| engine | version | particles | particle-substeps/s | ours / engine | z_com end [m] |")
-    print("|---|---|---:|---:|---:|---:|")
+    print(
+        "| engine | version | particles | particle-substeps/s (median of rounds) | per round "
+        "| ours / engine (median of per-round ratios) | per round | z_com end [m] |"
+    )
+    print("|---|---|---:|---:|---|---:|---|---:|")
     for name in engines:
-        r = best[name]
+        r = summary[name]
         if "error" in r:
-            print(f"| {name} | - | - | unavailable: {r['error']} | - | - |")
+            print(f"| {name} | - | - | unavailable: {r['error']} | - | - | - | - |")
             continue
-        rate = r["particle_substeps_per_s"]
-        ratio = f"{ours / rate:.2f}" if ours else "-"
         version = r.get("version") or r.get("warp", "-")
+        per = " ".join(f"{x / 1e6:.3f}M" for x in r["rates_per_round"])
+        ratio = f"{r['ours_over_engine']:.2f}" if "ours_over_engine" in r else "1.00"
+        ratios = " ".join(f"{x:.2f}" for x in r.get("ours_over_engine_per_round", []))
         print(
-            f"| {name} | {version} | {r['particles']} | {rate:,.0f} | {ratio} | {r['com_z_end']:.6f} |"
+            f"| {name} | {version} | {r['particles']} | {r['particle_substeps_per_s']:,.0f} "
+            f"| {per} | {ratio} | {ratios} | {r['com_z_end']:.6f} |"
         )
-    mp = best.get("motionphysics", {})
+    mp = summary.get("motionphysics", {})
     if args.backward and "backward_particle_substeps_per_s" in mp:
         print(
-            f"\nmotionphysics forward+backward: {mp['backward_particle_substeps_per_s']:,.0f} "
+            f"\nmotionphysics forward+backward (last round): "
+            f"{mp['backward_particle_substeps_per_s']:,.0f} "
             f"particle-substeps/s; forward+backward time = {mp['backward_over_forward']:.2f} x forward; "
             f"peak RSS {mp['peak_rss_mb']:.0f} MB"
         )
+    best = {"summary": summary, "rounds": rounds, "load_average": load, "start": t0, "end": t1}
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(best, indent=2))
     return 0
