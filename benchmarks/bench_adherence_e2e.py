@@ -1,7 +1,7 @@
 """What you describe is what you simulate, end to end: motion adherence before and after
 refinement with the embedded motion prior (issue 24's end-to-end bar).
 
-For every motion group, a held-out prompt (``priors.captions.group_prompt``: phrasings
+For every motion group, a held-out prompt (``language.captions.group_prompt``: phrasings
 the prior never saw, no material noun, so the kb reads the material from the motion
 words) on three scenes: the real 3DGS capture ``../shared/data/real/donut.ply``, a capsule
 mesh and ``builtin:duck``. Each scene/prompt runs twice through the command line, as a
@@ -38,7 +38,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_prior_direction import REAL, _mesh  # noqa: E402
-from motionphysics.priors.captions import GROUPS, group_prompt  # noqa: E402
+from motionphysics.language.captions import GROUPS, group_prompt  # noqa: E402
 
 SCENES = ("real", "mesh", "builtin")
 

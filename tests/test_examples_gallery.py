@@ -36,7 +36,7 @@ GROUP_EXAMPLE = {
     "crumbles": "sand_column",
     "squashes_flat": "plasticine_blob",
 }
-"""One example per motion group of the motion prior (priors.captions.GROUPS)."""
+"""One example per motion group of the motion prior (language.captions.GROUPS)."""
 
 KB_CLASS = {
     "bouncy_ball": "elastic",
@@ -79,7 +79,7 @@ def test_the_kb_reads_the_class_a_person_reads():
 
 
 def test_every_motion_group_has_an_example():
-    from motionphysics.priors.captions import GROUPS
+    from motionphysics.language.captions import GROUPS
 
     assert sorted(GROUP_EXAMPLE) == sorted(GROUPS)
     for name in GROUP_EXAMPLE.values():
@@ -88,7 +88,7 @@ def test_every_motion_group_has_an_example():
 
 def test_each_group_example_says_its_motion():
     """The sentence makes the claim of its group (the prior's prompt reader agrees)."""
-    from motionphysics.priors.captions import prompt_motion_group
+    from motionphysics.language.captions import prompt_motion_group
 
     wrong = {}
     for group, name in GROUP_EXAMPLE.items():

@@ -139,3 +139,44 @@ def test_a_run_stops_unless_the_config_gives_the_class(tmp_path, capsys, command
     assert p["provenance"]["sources"]["nu"] == "range centre of elastic"
     assert p["provenance"]["sources"]["density"] == "range centre of elastic"
     assert "from the centre of the class range" in err and "ceramic" not in err
+
+
+MOTION_ONLY = [
+    # (prompt, class, kb entry): no word names a material, an object the kb knows, a
+    # class or a cue; the motion words read as a motion group (MiniLM against the
+    # prior's training phrasings, never its held-out ones) and that group's material
+    ("A ring disintegrates into a pile.", "sand", "dry sand"),
+    ("A ring splatters across the floor.", "newtonian", "water"),
+    ("A ring gets flattened and stays that way.", "plasticine", "plasticine"),
+    ("A ring jumps right back up after it hits the floor.", "elastic", "rubber"),
+    # a word that names only what a thing depicts ("duck": the kb's animal figure) is no
+    # material: the motion decides; a material-bearing object keeps its material
+    ("A duck disintegrates into a pile.", "sand", "dry sand"),
+]
+
+
+def test_a_prompt_that_only_describes_a_motion_gets_that_motions_material(tmp_path, capsys):
+    """``simulate CONFIG`` with a config whose prompt names no material but a motion: the
+    run goes on with the motion's class, says so in one warning, and keeps the evidence
+    semantic (low confidence); a prompt with neither stays refused (above)."""
+    for k, (prompt, cls, entry) in enumerate(MOTION_ONLY):
+        cfg = tmp_path / f"m{k}.yaml"
+        cfg.write_text(CONFIG.format(prompt=prompt), encoding="utf-8")
+        out = tmp_path / f"m{k}"
+        assert main(["--quiet", "simulate", str(cfg), "--out", str(out)]) == 0, prompt
+        err = capsys.readouterr().err
+        said = [ln for ln in err.splitlines() if "reads as the motion" in ln]
+        assert len(said) == 1 and f"-> {cls} ({entry})" in said[0], err
+        assert "name the material" in said[0]
+        params = json.loads((out / "params.json").read_text())
+        assert params["class"] == cls, prompt
+        est = params["provenance"]["estimate"]
+        assert est["source"].startswith(f"{entry}:") and est["confidence"] < 0.5
+
+
+def test_a_material_bearing_object_keeps_its_material():
+    got = get_matcher(announce=False).match_many(
+        ["A rubber ball squashes when it lands.", "A steel ball splashes into the pool."]
+    )
+    assert [m.cls for m in got] == ["elastic", "metal"]
+    assert not any("reads as the motion" in w for m in got for w in m.warnings)

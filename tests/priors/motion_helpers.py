@@ -11,7 +11,7 @@ import numpy as np
 T = 16
 K = 32
 
-# measures that satisfy each motion group's rule (priors.captions.motion_group)
+# measures that satisfy each motion group's rule (language.captions.motion_group)
 MEASURES = {
     "bounces_high": dict(rebound=0.5, final_height=1.0, min_height=0.9, spread=1.0,
                          max_spread=1.0, deform=0.01, max_deform=0.02, wobble=0.0,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motionphysics.priors.captions import GROUPS
+from motionphysics.language.captions import GROUPS
 from motionphysics.priors.motion_data import (
     KEEP_PARTICLES,
     TARGETS,

@@ -10,8 +10,8 @@ Two kinds of labels, neither fitted by the score:
   vibrates gently, a sand column that collapses into a heap, a ball that rolls), each
   with the prompt (:data:`WORDS`) that says it;
 - :func:`clip_confusion`: the motion prior's simulated clips (``motionphysics prior
-  data``; each clip's group is its MEASURED motion, :func:`motionphysics.priors.captions
-  .motion_group`) scored against the group phrasings of :mod:`motionphysics.priors.captions`.
+  data``; each clip's group is its MEASURED motion, :func:`motionphysics.language.captions
+  .motion_group`) scored against the group phrasings of :mod:`motionphysics.language.captions`.
 
 :func:`confusion` scores every prompt on every labelled trajectory (rows: prompts, that
 is words or groups; columns: the behaviours), :func:`margins` says by how much the
@@ -324,7 +324,7 @@ def clip_confusion(
     (``motionphysics prior data``): rows the groups' phrasings (``held_out``: the
     held-out ones, ``train``: the training ones) on the group's object noun, columns
     the clips of each measured group. Returns (M, group names, clips per group)."""
-    from motionphysics.priors.captions import GROUPS, HELD_OUT, TRAIN, group_prompt
+    from motionphysics.language.captions import GROUPS, HELD_OUT, TRAIN, group_prompt
     from motionphysics.priors.motion_data import load_clips
 
     table = HELD_OUT if phrasings == "held_out" else TRAIN

@@ -91,6 +91,13 @@ SPECIFICITY = 0.1
 """Added per extra token of a matched alias ("wet sand" > "sand")."""
 CUE_WEIGHT = 0.25
 """Behaviour cue words ("bounces", "splashes", "oozes"); once per class."""
+MOTION_WEIGHT = 2.0
+"""Class score added by the motion reading of a prompt in which no word names a material,
+a class or a cue, at most a shape or what a thing depicts (:func:`_motion_reading`: "a ring
+jumps right back up", "a duck splatters across the floor"): more than such a word with its
+first-phrase bonus and any similarity (1.3 + < 0.7), less than a class word (3), so the
+motion's class is chosen; the evidence stays semantic or generic (low confidence, said in
+a warning). A material-bearing object ("a rubber ball squashes") keeps its material."""
 FIRST_BONUS = 0.3
 """The first material-bearing phrase is usually the subject: the simulated object."""
 MADE_OF_FACTOR = 1.3
@@ -947,6 +954,14 @@ class KBMatcher:
             out.append({"word": m.word, "steps": dict(m.steps), "how": m.how})
         return out
 
+    def _only_generic(self, sp: _Span, toks: list[str]) -> bool:
+        """True when every kb entry ``sp`` matched names a shape or what a thing depicts
+        (``GENERIC_WORDS``, ``GENERIC_ENTRIES``), not a material."""
+        words = set(" ".join(toks[sp.start : sp.end]).split())
+        return all(
+            self.kb.entries[i].name in GENERIC_ENTRIES or words <= GENERIC_WORDS for i in sp.kb
+        )
+
     def _is_substance(self, sp: _Span) -> bool:
         return bool(sp.explicit) or any(self.kb.entries[i].kind == "substance" for i in sp.kb)
 
@@ -1005,6 +1020,15 @@ class KBMatcher:
                 explicit_words.append(words)
             for c in sp.cues:
                 cues[c] = CUE_WEIGHT
+        motion = None
+        if not any(
+            sp.explicit or sp.cues or sp.muted or not self._only_generic(sp, toks) for sp in spans
+        ):
+            # No word names a class or a material (at most a shape or what a thing depicts:
+            # "a duck", "a ball"): the motion words may say what it is made of.
+            motion = _motion_reading(prompt)
+            if motion is not None:
+                cues[motion[0]] = MOTION_WEIGHT
         entry_score = entry_sim + lexical
         class_scores: dict[str, float] = {}
         best_entry: dict[str, int] = {}
@@ -1019,6 +1043,14 @@ class KBMatcher:
         scores = np.array([class_scores[c] for c in MATERIAL_CLASSES])
         p = np.exp((scores - scores.max()) / TEMPERATURE)
         separation = float(p[MATERIAL_CLASSES.index(cls)] / p.sum())
+        if motion is not None and cls == motion[0]:
+            # the motion's own material ("splashes" -> water), not the nearest by meaning
+            named = [
+                i
+                for i in self.kb.by_class(cls)
+                if self.kb.entries[i].name == MOTION_ENTRY[motion[1]]
+            ]
+            best_entry[cls] = named[0] if named else best_entry[cls]
         j = best_entry[cls]
         chosen = self.kb.entries[j]
         words = matched_words.get(int(j))
@@ -1046,7 +1078,18 @@ class KBMatcher:
         understood = list(dict.fromkeys(w for _, w in known))
         names_class = any(sp.kb or sp.explicit or sp.cues or sp.muted for sp in spans)
         warnings: list[str] = []
-        if confidence < CONFIDENCE_THRESHOLD:
+        if motion is not None:
+            # No word names a class, but the motion words read as one motion group
+            # (MiniLM against the training phrasings): that group's class, said so.
+            mcls, group, sim, clause = motion
+            names_class = True
+            understood.append(clause)
+            warnings.append(
+                f"kb: no word of the prompt names a material; '{clause}' reads as the "
+                f"motion '{group.replace('_', ' ')}' (similarity {sim:.2f}) -> {mcls} "
+                f"({chosen.name}); name the material for a surer estimate"
+            )
+        elif confidence < CONFIDENCE_THRESHOLD:
             if words is not None:
                 warnings.append(
                     f"not sure: matched '{words}' -> {chosen.name} ({cls}, confidence "
@@ -1088,6 +1131,36 @@ class KBMatcher:
             names_class,
             used,
         )
+
+
+MOTION_ENTRY = {
+    "bounces_high": "rubber",
+    "barely_bounces": "rubber",
+    "wobbles": "jelly",
+    "splashes": "water",
+    "oozes": "honey",
+    "keeps_shape": "steel",
+    "crumbles": "dry sand",
+    "squashes_flat": "plasticine",
+}
+"""The kb entry a motion reading takes its values from (its class: ``captions.GROUP_CLASS``)."""
+
+
+def _motion_reading(prompt: str) -> tuple[str, str, float, str] | None:
+    """``(class, motion group, similarity, clause)`` of a prompt that names no material but
+    describes a motion ("a ring jumps right back up after hitting the floor" -> elastic,
+    bounces high), or None (no clause is near a motion group's training phrasings, or the
+    prompt is mostly not English: the encoder reads English)."""
+    if mostly_not_english(prompt):
+        return None
+    from motionphysics.language.captions import GROUP_CLASS, prompt_motion_reading
+
+    group, sim, clause = prompt_motion_reading(
+        prompt, held_out_anchors=False, whole_if_no_verb=True
+    )
+    if group is None:
+        return None
+    return GROUP_CLASS[group], group, float(sim), clause
 
 
 def _strip_leading(words: Sequence[str]) -> tuple[str, ...]:

@@ -30,10 +30,10 @@ __all__ = [
 
 def resolve_negative(negative_prompt: str, prompt: str) -> str:
     """A loss's ``negative_prompt`` option as used: ``auto`` becomes the contrasting
-    description of :func:`motionphysics.priors.captions.contrast_prompt`."""
+    description of :func:`motionphysics.language.captions.contrast_prompt`."""
     if negative_prompt != "auto":
         return negative_prompt
-    from motionphysics.priors.captions import contrast_prompt
+    from motionphysics.language.captions import contrast_prompt
 
     return contrast_prompt(prompt)
 

@@ -37,7 +37,7 @@ from torch import Tensor, nn
 from motionphysics.errors import UserInputError
 from motionphysics.priors.base import TextEmbeddings, VideoPrior
 from motionphysics.priors.motion_features import NUM_FEATURES, MotionScene, clip_features
-from motionphysics.priors.text import TEXT_DIM, sentence_embeddings
+from motionphysics.language.text import TEXT_DIM, sentence_embeddings
 
 __all__ = [
     "DEFAULT_WEIGHTS",

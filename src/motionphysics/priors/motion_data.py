@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from motionphysics.priors.captions import GROUPS, motion_group
+from motionphysics.language.captions import GROUPS, motion_group
 
 __all__ = [
     "CLIP_FRAMES",

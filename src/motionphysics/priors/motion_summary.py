@@ -1,9 +1,9 @@
 """What a refinement did to the motion, in the motion prior's words.
 
 :func:`motion_record` reads the motion group the prompt asks for
-(:func:`~motionphysics.priors.captions.prompt_motion_group`) and the motion group of the
+(:func:`~motionphysics.language.captions.prompt_motion_group`) and the motion group of the
 simulated trajectory before and after refinement (the caption rules of
-:func:`~motionphysics.priors.captions.motion_group` on the measures of
+:func:`~motionphysics.language.captions.motion_group` on the measures of
 :func:`~motionphysics.priors.motion_data.clip_measures`: rebound, peak and final shape
 change, spread, wobble, late speed), so the summary and the report can put the motion
 asked for next to the motion simulated. :func:`motion_lines` writes it for the summary.
@@ -82,7 +82,7 @@ def motion_record(
     initial and the refined trajectory at times ``t``. ``mass`` [P], ``gravity`` [3] and
     ``floor`` (ground height along up, or None: the lowest point reached) are what eval
     scores the adherence with."""
-    from motionphysics.priors.captions import prompt_motion_group
+    from motionphysics.language.captions import prompt_motion_group
 
     asked, similarity = prompt_motion_group(prompt)
     rec: dict[str, Any] = {

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motionphysics.priors.captions import GROUPS, HELD_OUT, NEUTRAL, TRAIN, caption_clip
-from motionphysics.priors.captions import motion_group as group_of
+from motionphysics.language.captions import GROUPS, HELD_OUT, NEUTRAL, TRAIN, caption_clip
+from motionphysics.language.captions import motion_group as group_of
 from motionphysics.priors.motion_data import motion_measures
 
 T, DT = 16, 0.05
@@ -174,7 +174,7 @@ def test_caption_uses_only_its_groups_phrases(held_out):
     ],
 )
 def test_contrast_prompt_is_the_opposite_motion_with_the_same_subject(prompt, group, negative):
-    from motionphysics.priors.captions import OPPOSITE, contrast_prompt, prompt_motion_group
+    from motionphysics.language.captions import OPPOSITE, contrast_prompt, prompt_motion_group
 
     assert prompt_motion_group(prompt)[0] == group
     neg = contrast_prompt(prompt)
@@ -186,7 +186,7 @@ def test_contrast_prompt_is_the_opposite_motion_with_the_same_subject(prompt, gr
 
 
 def test_opposites_pair_up_the_groups():
-    from motionphysics.priors.captions import OPPOSITE
+    from motionphysics.language.captions import OPPOSITE
 
     assert set(OPPOSITE) == set(GROUPS) and set(OPPOSITE.values()) <= set(GROUPS)
     assert all(OPPOSITE[g] != g for g in GROUPS)

@@ -26,6 +26,7 @@ import numpy as np
 
 __all__ = [
     "GROUPS",
+    "GROUP_CLASS",
     "HELD_OUT",
     "TRAIN",
     "OPPOSITE",
@@ -35,6 +36,7 @@ __all__ = [
     "motion_group",
     "object_noun",
     "prompt_motion_group",
+    "prompt_motion_reading",
 ]
 
 GROUPS = (
@@ -119,6 +121,21 @@ HELD_OUT: dict[str, tuple[str, ...]] = {
     "crumbles": ("disintegrates into a pile", "falls to pieces in a mound"),
     "squashes_flat": ("gets flattened and stays that way", "deforms into a flat shape"),
 }
+
+GROUP_CLASS: dict[str, str] = {
+    "bounces_high": "elastic",
+    "barely_bounces": "elastic",
+    "wobbles": "elastic",
+    "splashes": "newtonian",
+    "oozes": "newtonian",
+    "keeps_shape": "metal",
+    "crumbles": "sand",
+    "squashes_flat": "plasticine",
+}
+"""The material class a motion suggests when the prompt names no material (the kb's
+motion reading): a high or small bounce and a wobble are elastic, a splash and an ooze
+are liquids, keeping its shape is rigid (metal), crumbling is granular, squashing flat
+and staying so is plastic."""
 
 NEUTRAL = ("falls onto the ground", "drops onto the floor", "is dropped")
 """Phrases for clips no group fits (no motion claim)."""
@@ -281,7 +298,7 @@ _VERBS = {"is", "are", "hits", "falls", "drops", "lands", "stays", "keeps", "flo
 
 def _sentence_embeddings(texts: list[str]):
     """Mean-pooled, unit-norm MiniLM sentence embeddings [N, 384] (the prior's encoder)."""
-    from motionphysics.priors.text import sentence_embeddings
+    from motionphysics.language.text import sentence_embeddings
 
     return sentence_embeddings(texts, max_tokens=24)
 
@@ -310,17 +327,31 @@ def prompt_motion_group(prompt: str) -> tuple[str | None, float]:
     closest to, and that similarity. A clause counts only when its closest group is at
     least MIN_MOTION_SIMILARITY and closer than every neutral phrase ("is dropped").
     None when no clause counts, or the prompt has no verb."""
+    group, sim, _ = prompt_motion_reading(prompt)
+    return group, sim
+
+
+def prompt_motion_reading(
+    prompt: str, *, held_out_anchors: bool = True, whole_if_no_verb: bool = False
+) -> tuple[str | None, float, str]:
+    """:func:`prompt_motion_group` with the clause that decided: ``(group, similarity,
+    clause)``. ``held_out_anchors=False`` compares with the training phrasings only (what
+    the kb's motion reading uses, so held-out phrasings stay unseen by everything that
+    reads a prompt); ``whole_if_no_verb`` reads the whole prompt when no verb splits it."""
     import re
 
     _, pred = _split(prompt)
+    if not pred and whole_if_no_verb:
+        pred = prompt.strip().rstrip(".!")
     clauses = [c.strip() for c in re.split(r",|;|\band\b|\bthen\b", pred) if c.strip()]
     if not clauses:
-        return None, 0.0
-    phrases = [(g, p) for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g])]
+        return None, 0.0, ""
+    table = {g: (*TRAIN[g], *(HELD_OUT[g] if held_out_anchors else ())) for g in GROUPS}
+    phrases = [(g, p) for g in GROUPS for p in table[g]]
     emb = _sentence_embeddings(clauses + [p for _, p in phrases] + list(NEUTRAL))
     k = len(clauses)
     sims = emb[:k] @ emb[k:].T  # [clauses, phrases + neutral]
-    found: tuple[str | None, float] = (None, 0.0)
+    found: tuple[str | None, float, str] = (None, 0.0, "")
     for c in range(k):
         row = sims[c].tolist()
         best: dict[str, float] = {}
@@ -329,7 +360,7 @@ def prompt_motion_group(prompt: str) -> tuple[str | None, float]:
         group = max(best, key=best.get)
         if best[group] >= MIN_MOTION_SIMILARITY and best[group] > max(row[len(phrases) :]):
             if best[group] > found[1]:
-                found = (group, best[group])
+                found = (group, best[group], clauses[c])
     return found
 
 
