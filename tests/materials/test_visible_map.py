@@ -289,3 +289,39 @@ def test_foam_that_should_recover_slowly_is_told_it_cannot(capsys):
     assert len(lines) == 1 and MODEL_LIMITS["foam"] in lines[0]
     assert main(["init", "A foam block is dropped on the floor."]) == 0
     assert "viscoelastic" not in capsys.readouterr().err
+
+
+SAND_CONFIG = """\
+scene: {{source: "builtin:cube", scale: 0.2, translate: [0, 0, 0.12], max_particles: 400}}
+prompt: "{prompt}"
+sim: {{grid: 16, frames: 2, frame_dt: 0.04, substeps: auto}}
+camera: {{width: 32, height: 24}}
+"""
+
+
+@pytest.mark.parametrize(
+    "prompt, told",
+    [
+        ("A block of wet sand holds together when it lands.", True),
+        ("The damp sand keeps its shape on impact.", True),
+        ("A sand cube stays intact as it falls.", True),
+        ("Dry sand does not hold together and crumbles into a heap.", False),
+        ("A block of wet sand falls and slumps.", False),
+    ],
+)
+def test_sand_that_should_hold_together_is_told_it_cannot(tmp_path, capsys, prompt, told):
+    """The sand model has no cohesion: ``simulate CONFIG`` with a prompt asking sand to
+    hold together says on one line that it slumps, and names the class that can; a prompt
+    that does not ask (or negates it) is not told."""
+    from motionphysics.materials.catalog import MODEL_LIMITS
+
+    cfg = tmp_path / "sand.yaml"
+    cfg.write_text(SAND_CONFIG.format(prompt=prompt), encoding="utf-8")
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "without cohesion" in ln]
+    assert len(lines) == (1 if told else 0), err
+    if told:
+        assert MODEL_LIMITS["sand"] in lines[0] and "material.class: plasticine" in lines[0]
+    params = json.loads((tmp_path / "out" / "params.json").read_text())
+    assert params["class"] == "sand"

@@ -25,6 +25,7 @@ from motionphysics.init.baselines import MedianKind, median_params
 from motionphysics.init.llm import LLMOptions, ask_material
 from motionphysics.materials.catalog import (
     MATERIALS,
+    MODEL_LIMIT_WORDS,
     MODEL_LIMITS,
     Clamp,
     MaterialParams,
@@ -34,12 +35,6 @@ from motionphysics.materials.catalog import (
     spec,
 )
 
-_SLOW_RECOVERY = re.compile(
-    r"\brecover|slowly\s+(returns?|regains?|springs?|comes?)|back\s+to\s+(its\s+)?"
-    r"(original\s+)?shape|regains?\s+(its\s+)?shape",
-    re.I,
-)
-"""Words asking for a slow viscoelastic recovery, which the foam model cannot do."""
 
 __all__ = [
     "BACKENDS",
@@ -272,7 +267,11 @@ def _from_kb(match, prompt: str, table: str) -> MaterialEstimate:
     # A prompt the kb cannot name a class for carries its error line instead of the
     # "not sure: closest ..." warnings of a guess nobody uses.
     warnings = [] if error else list(getattr(match, "warnings", []))
-    if not error and match.cls in MODEL_LIMITS and _SLOW_RECOVERY.search(prompt or ""):
+    if (
+        not error
+        and match.cls in MODEL_LIMITS
+        and re.search(MODEL_LIMIT_WORDS[match.cls], prompt or "", re.I)
+    ):
         warnings.append(f"kb: {match.cls}: {MODEL_LIMITS[match.cls]}")
     notes = []
     for c in clamped:

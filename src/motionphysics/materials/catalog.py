@@ -65,6 +65,7 @@ __all__ = [
     "MaterialParams",
     "Clamp",
     "CLAMP_KINDS",
+    "MODEL_LIMIT_WORDS",
     "PHYSICAL_LIMITS",
     "RangeNote",
     "check_physical",
@@ -169,9 +170,33 @@ MODEL_LIMITS: dict[str, str] = {
         "'slowly recovers its shape' (memory foam) cannot be simulated as such: it either "
         "bounces back or stays dented"
     ),
+    "sand": (
+        "the sand model is Drucker-Prager plasticity without cohesion: grains stand in a "
+        "heap up to their friction angle, but nothing holds them together, so a block or "
+        "a sandcastle that 'holds together' or 'keeps its shape' slumps into a heap when "
+        "it falls (wet sand only piles steeper); for a lump that holds together, give "
+        "material.class: plasticine"
+    ),
 }
 """What a class's constitutive model cannot do that words may ask of it (the kb warns
-when a prompt asks for it; README, "What is simulated")."""
+when a prompt asks for it, :data:`MODEL_LIMIT_WORDS`; README, "What is simulated")."""
+
+_NOT = r"(?<!\bnot )(?<!n't )(?<!\bnever )"
+MODEL_LIMIT_WORDS: dict[str, str] = {
+    "foam": (
+        r"\brecover|slowly\s+(returns?|regains?|springs?|comes?)|back\s+to\s+(its\s+)?"
+        r"(original\s+)?shape|regains?\s+(its\s+)?shape"
+    ),
+    "sand": (
+        _NOT + r"\b(holds?|holding|keeps?|keeping|retains?|retaining)\s+"
+        r"(together|(its|their)\s+(shape|form))"
+        r"|" + _NOT + r"\b(stays?|staying|remains?|remaining)\s+"
+        r"(together|intact|in\s+one\s+piece|whole)"
+    ),
+}
+"""Case-insensitive patterns of the words asking a class for what :data:`MODEL_LIMITS`
+says it cannot do: a slow recovery of foam; sand that holds together (a negated "does
+not hold together" asks for nothing the model lacks)."""
 
 
 def _E(low, high, source):
