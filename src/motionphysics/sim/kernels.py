@@ -559,6 +559,18 @@ def _bounds(x: wp.array(dtype=wp.vec3), count: int, out: wp.array(dtype=wp.vec3)
     out[1] = hi
 
 
+@wp.func
+def _add_index_times(acc: wp.vec3, idx: int, x: wp.vec3):
+    """``acc + idx * x`` for a stencil offset ``idx`` in {0, 1, 2}; with the loops unrolled
+    ``idx`` is a constant and no multiply by 0 or 1 is left (the compiler may not drop
+    ``0.0 * x`` itself: it is NaN for infinite x)."""
+    if idx == 1:
+        return acc + x
+    if idx == 2:
+        return acc + 2.0 * x
+    return acc
+
+
 @wp.kernel
 def _g2p(
     x: wp.array(dtype=wp.vec3),
@@ -578,6 +590,10 @@ def _g2p(
 ):
     # grid_v stacks the objects' velocity fields along the first axis (object o at
     # i + o * obj_stride); one object: obj_stride = 0, object_id not read.
+    # With W = a_i b_j c_k (the per-axis weights w[., axis]) and dpos = (ijk - fx) dx:
+    #   v = sum W g,   B = sum W g dpos^T = dx ([S_i S_j S_k] - v fx^T),
+    # S_axis = sum W g * (that axis' stencil index). The sums are taken axis by axis
+    # (inner sums over k first, as in _g2p_adjoint): ~10 flops per node instead of ~20.
     p = wp.tid() + p_offset
     inv_dx = 1.0 / dx
     base, fx = _stencil(x[p], lo, inv_dx, dims)
@@ -586,15 +602,33 @@ def _g2p(
         b0 = base[0] + obj_stride * object_id[p]
     w = _weights(fx)
     v_new = wp.vec3(0.0, 0.0, 0.0)
-    B = wp.mat33()
+    s_i = wp.vec3(0.0, 0.0, 0.0)
+    s_j = wp.vec3(0.0, 0.0, 0.0)
+    s_k = wp.vec3(0.0, 0.0, 0.0)
     for i in range(3):
+        u = wp.vec3(0.0, 0.0, 0.0)
+        u_j = wp.vec3(0.0, 0.0, 0.0)
+        u_k = wp.vec3(0.0, 0.0, 0.0)
         for j in range(3):
+            t = wp.vec3(0.0, 0.0, 0.0)
+            t_k = wp.vec3(0.0, 0.0, 0.0)
             for k in range(3):
-                weight = w[i, 0] * w[j, 1] * w[k, 2]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
-                gv = grid_v[b0 + i, base[1] + j, base[2] + k]
-                v_new = v_new + weight * gv
-                B = B + weight * wp.outer(gv, dpos)
+                g = w[k, 2] * grid_v[b0 + i, base[1] + j, base[2] + k]
+                t = t + g
+                t_k = _add_index_times(t_k, k, g)
+            bt = w[j, 1] * t
+            u = u + bt
+            u_j = _add_index_times(u_j, j, bt)
+            u_k = u_k + w[j, 1] * t_k
+        au = w[i, 0] * u
+        v_new = v_new + au
+        s_i = _add_index_times(s_i, i, au)
+        s_j = s_j + w[i, 0] * u_j
+        s_k = s_k + w[i, 0] * u_k
+    B = dx * (
+        wp.mat33(s_i[0], s_j[0], s_k[0], s_i[1], s_j[1], s_k[1], s_i[2], s_j[2], s_k[2])
+        - wp.outer(v_new, fx)
+    )
     xn = x[p] + dt * v_new
     xn = wp.vec3(
         wp.clamp(xn[0], x_min[0], x_max[0]),
@@ -613,18 +647,6 @@ def _dweights(fx: wp.vec3):
     d1 = -2.0 * (fx - wp.vec3(1.0, 1.0, 1.0))
     d2 = fx - wp.vec3(0.5, 0.5, 0.5)
     return wp.mat33(d0[0], d0[1], d0[2], d1[0], d1[1], d1[2], d2[0], d2[1], d2[2])
-
-
-@wp.func
-def _add_index_times(acc: wp.vec3, idx: int, x: wp.vec3):
-    """``acc + idx * x`` for a stencil offset ``idx`` in {0, 1, 2}; with the loops unrolled
-    ``idx`` is a constant and no multiply by 0 or 1 is left (the compiler may not drop
-    ``0.0 * x`` itself: it is NaN for infinite x)."""
-    if idx == 1:
-        return acc + x
-    if idx == 2:
-        return acc + 2.0 * x
-    return acc
 
 
 @wp.kernel
