@@ -280,3 +280,42 @@ def test_a_small_object_high_above_the_floor_starts_clear_of_the_walls(
     dx = params["sim_context"]["dx"]
     top = np.asarray(params["scene"]["domain_hi"])[2] - 3 * dx  # the material box's top face
     assert top - x0[:, 2].max() >= (MIN_MARGIN_CELLS - 1.0) * dx - 1e-6
+
+
+RESOLUTION = """\
+scene: {{source: "builtin:sphere", scale: {scale}, translate: [0, 0, {z}], max_particles: 500}}
+prompt: "A rubber ball falls onto the floor."
+sim: {{grid: {grid}, frames: 2, frame_dt: 0.02, substeps: auto}}
+camera: {{width: 32, height: 24}}
+"""
+
+
+@pytest.mark.parametrize(
+    "scale, z, grid, told",
+    [(0.05, 0.3, 16, True), (0.3, 0.16, 24, False)],
+)
+def test_an_object_a_few_cells_across_is_told_it_is_not_resolved(
+    tmp_path, capsys, scale, z, grid, told
+):
+    """``simulate CONFIG``: a 5 cm ball 30 cm above the floor at grid 16 spans under
+    MIN_RESOLVED_CELLS cells, so how it deforms is the grid's, not the rubber's: one
+    warning says how many cells it spans and how much finer sim.grid would resolve it, and
+    params.json keeps the line; a 30 cm ball near the floor at grid 24 is not told."""
+    from motionphysics.assembly_scene import MIN_RESOLVED_CELLS
+
+    cfg = tmp_path / "res.yaml"
+    cfg.write_text(RESOLUTION.format(scale=scale, z=z, grid=grid), encoding="utf-8")
+    out = tmp_path / "out"
+    assert main(["simulate", str(cfg), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "resolution:" in ln]
+    params = json.loads((out / "params.json").read_text())
+    x0 = np.load(out / "trajectory.npz")["x"][0]
+    cells = float((x0.max(axis=0) - x0.min(axis=0)).max()) / params["sim_context"]["dx"]
+    assert (cells < MIN_RESOLVED_CELLS) == told, cells
+    if told:
+        assert len(lines) == 1 and "warning" in lines[0], err
+        assert f"spans {cells:.1f} grid cells" in lines[0] and "finer sim.grid" in lines[0]
+        assert params["scene"]["resolution"] in lines[0]
+    else:
+        assert not lines and "resolution" not in params["scene"], err

@@ -786,6 +786,12 @@ def _scene_notes(ground_note: str | None, sim_scene, observer) -> dict[str, str]
     if sparse:
         notes["static_support"] = sparse
         warn(sparse, observer)
+    from motionphysics.assembly_scene import resolution_line
+
+    coarse = resolution_line(sim_scene)
+    if coarse:
+        notes["resolution"] = coarse
+        warn(coarse, observer)
     fill = getattr(sim_scene, "fill_note", None)
     if fill:
         notes["fill"] = fill

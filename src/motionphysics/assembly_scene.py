@@ -17,7 +17,14 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["has_region", "region_ground", "static_lines", "static_splats_view"]
+__all__ = [
+    "MIN_RESOLVED_CELLS",
+    "has_region",
+    "region_ground",
+    "resolution_line",
+    "static_lines",
+    "static_splats_view",
+]
 
 STATIC_GROUND = (
     "ground: the static scene outside scene.region holds the object (no floor added: "
@@ -88,3 +95,45 @@ def static_lines(sim_scene) -> tuple[str | None, str | None]:
         if col.closed:
             info += f"; {col.closed} columns of gaps in the support closed"
     return info, getattr(sim_scene, "static_note", None)
+
+
+MIN_RESOLVED_CELLS = 4.0
+"""Grid cells along an object's longest extent below which MLS-MPM cannot resolve its
+deformation (a body 2 cells across moves as a blob of grid nodes: its squash, wobble and
+spread are the grid's, not the material's). About 8 cells is the usual working minimum."""
+GOOD_CELLS = 8.0
+"""Cells across the object a finer ``sim.grid`` is advised to reach."""
+
+
+def resolution_line(sim_scene) -> str | None:
+    """A warning line when a simulated object spans fewer than :data:`MIN_RESOLVED_CELLS`
+    grid cells along its longest extent (None otherwise): how many it spans, at what
+    ``dx``, and how much finer ``sim.grid`` would give it about :data:`GOOD_CELLS`."""
+    import math
+
+    import numpy as np
+
+    x = np.asarray(sim_scene.particles.detach().cpu().numpy(), dtype=np.float64)
+    if x.size == 0:
+        return None
+    dx = float(sim_scene.dx)
+    oid = getattr(sim_scene, "object_id", None)
+    ids = np.zeros(len(x), dtype=np.int64) if oid is None else np.asarray(oid.cpu().numpy())
+    objs = np.unique(ids)
+    worst: tuple[float, int] | None = None
+    for k in objs:
+        p = x[ids == k]
+        cells = float((p.max(axis=0) - p.min(axis=0)).max()) / dx
+        if worst is None or cells < worst[0]:
+            worst = (cells, int(k))
+    cells, k = worst
+    if cells >= MIN_RESOLVED_CELLS:
+        return None
+    who = "the object" if len(objs) == 1 else f"object {k + 1} of {len(objs)}"
+    factor = math.ceil(GOOD_CELLS / max(cells, 1e-6))
+    return (
+        f"resolution: {who} spans {cells:.1f} grid cells at dx = {dx:.3g} m, too few for "
+        f"the simulation to resolve how it deforms (under {MIN_RESOLVED_CELLS:g} cells it "
+        f"moves as a blob of grid nodes); a {factor}x finer sim.grid gives it about "
+        f"{GOOD_CELLS:g} cells (or give sim.domain close around the motion)"
+    )
