@@ -374,12 +374,20 @@ def _p2g(
     base, fx = _stencil(x[p], lo, inv_dx, dims)
     r = base - off  # index into the region-sized grid
     w = _weights(fx)
+    # m v + A dpos, dpos = (ijk - fx) dx, is built incrementally: it steps by dx A e_axis
+    # per node along each axis (as in _p2g_adjoint), ~12 flops per node instead of ~25
+    Ae0 = dx * wp.vec3(A[0, 0], A[1, 0], A[2, 0])
+    Ae1 = dx * wp.vec3(A[0, 1], A[1, 1], A[2, 1])
+    Ae2 = dx * wp.vec3(A[0, 2], A[1, 2], A[2, 2])
+    ti = mv - dx * (A * fx)  # at node (0, 0, 0)
     for i in range(3):
+        tj = ti
         for j in range(3):
+            t = tj
+            ab = w[i, 0] * w[j, 1]
             for k in range(3):
-                weight = w[i, 0] * w[j, 1] * w[k, 2]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * dx
-                q = weight * (mv + A * dpos)
+                weight = ab * w[k, 2]
+                q = weight * t
                 # one atomic per node: momentum in xyz, mass in w
                 wp.atomic_add(
                     grid_mv,
@@ -389,6 +397,9 @@ def _p2g(
                     r[2] + k,
                     wp.vec4(q[0], q[1], q[2], weight * m),
                 )
+                t = t + Ae2
+            tj = tj + Ae1
+        ti = ti + Ae0
 
 
 @wp.kernel
