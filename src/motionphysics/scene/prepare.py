@@ -954,9 +954,12 @@ def _grown_box(points, sim_cfg, forces, boundary_conditions, material_class, vel
     return _stop_at_planes(lo, hi, grown_lo, grown_hi, boundary_conditions)
 
 
-def _axis_planes(boundary_conditions):
-    """``(axis, sign of the normal, plane coordinate on that axis)`` of every axis-aligned
-    non-cut ``surface_collider``."""
+def _planes_within(lo, hi, reach: float, boundary_conditions):
+    """Per axis, whether an axis-aligned non-cut collider plane facing into the box
+    ``lo``/``hi`` lies at most ``reach`` [m] beyond (or inside) its low / high face:
+    ``(low (3,) bool, high (3,) bool)``."""
+    low = np.zeros(3, dtype=bool)
+    high = np.zeros(3, dtype=bool)
     for bc in boundary_conditions:
         if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
             continue
@@ -968,19 +971,9 @@ def _axis_planes(boundary_conditions):
         a = int(np.argmax(np.abs(n)))
         if abs(abs(n[a]) / nn - 1.0) > 1e-9:
             continue
-        yield a, (1 if n[a] > 0 else -1), float(p[a])
-
-
-def _planes_within(lo, hi, reach: float, boundary_conditions):
-    """Per axis, whether an axis-aligned non-cut collider plane facing into the box
-    ``lo``/``hi`` lies at most ``reach`` [m] beyond (or inside) its low / high face:
-    ``(low (3,) bool, high (3,) bool)``."""
-    low = np.zeros(3, dtype=bool)
-    high = np.zeros(3, dtype=bool)
-    for a, sign, q in _axis_planes(boundary_conditions):
-        if sign > 0 and q >= lo[a] - reach:
+        if n[a] > 0 and p[a] >= lo[a] - reach:
             low[a] = True
-        elif sign < 0 and q <= hi[a] + reach:
+        elif n[a] < 0 and p[a] <= hi[a] + reach:
             high[a] = True
     return low, high
 
@@ -988,11 +981,21 @@ def _planes_within(lo, hi, reach: float, boundary_conditions):
 def _stop_at_planes(lo, hi, grown_lo, grown_hi, boundary_conditions):
     """``grown_lo``/``grown_hi`` (the box ``lo``/``hi`` grown by its motion), stopped at
     the axis-aligned non-cut collider planes the box faces (motion ends there)."""
-    for a, sign, q in _axis_planes(boundary_conditions):
-        if sign > 0 and q <= lo[a]:
-            grown_lo[a] = max(grown_lo[a], q)
-        elif sign < 0 and q >= hi[a]:
-            grown_hi[a] = min(grown_hi[a], q)
+    for bc in boundary_conditions:
+        if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
+            continue
+        n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
+        p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
+        nn = float(np.linalg.norm(n))
+        if not nn > 0:
+            continue
+        a = int(np.argmax(np.abs(n)))
+        if abs(abs(n[a]) / nn - 1.0) > 1e-9:
+            continue
+        if n[a] > 0 and p[a] <= lo[a]:
+            grown_lo[a] = max(grown_lo[a], p[a])
+        elif n[a] < 0 and p[a] >= hi[a]:
+            grown_hi[a] = min(grown_hi[a], p[a])
     return grown_lo, grown_hi
 
 
