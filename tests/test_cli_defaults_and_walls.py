@@ -242,46 +242,6 @@ def test_fill_of_an_open_surface_says_the_object_is_hollow(tmp_path, capsys):
     assert any(s.startswith("fill:") and "hollow" in s for s in out.splitlines())
 
 
-SMALL_HIGH = """\
-scene: {{source: "{source}", scale: {scale}, translate: [0, 0, 0.3], max_particles: 400}}
-prompt: "A steel ring falls onto the floor."
-sim: {{grid: 16, frames: 3, frame_dt: 0.02, substeps: auto}}
-camera: {{width: 32, height: 24}}
-"""
-
-
-@pytest.mark.parametrize(
-    "source, scale",
-    [("builtin:sphere", 0.06), ("builtin:cube", 0.05), ("REAL_DONUT", 0.3)],
-)
-def test_a_small_object_high_above_the_floor_starts_clear_of_the_walls(
-    tmp_path, capsys, source, scale
-):
-    """A small object far above its floor spans a few cells of a coarse fitted grid; the
-    fitted material box still leaves it MIN_MARGIN_CELLS cells from every face but the
-    floor, so ``simulate CONFIG`` reports no wall reached (before: 'reached the domain
-    wall z+ at frame 0' for the real donut at scale 0.3, 0.4 cells from the top face)."""
-    from motionphysics.scene.prepare import MIN_MARGIN_CELLS
-
-    if source == "REAL_DONUT":
-        donut = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "donut.ply"
-        if not donut.exists():
-            pytest.skip(f"the real capture is not beside the checkout ({donut})")
-        source = str(donut)
-    cfg = tmp_path / "small.yaml"
-    cfg.write_text(SMALL_HIGH.format(source=source, scale=scale), encoding="utf-8")
-    out = tmp_path / "out"
-    assert main(["simulate", str(cfg), "--out", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert "reached the domain wall" not in err, err
-    params = json.loads((out / "params.json").read_text())
-    assert not params["scene"].get("wall_hits")
-    x0 = np.load(out / "trajectory.npz")["x"][0]
-    dx = params["sim_context"]["dx"]
-    top = np.asarray(params["scene"]["domain_hi"])[2] - 3 * dx  # the material box's top face
-    assert top - x0[:, 2].max() >= (MIN_MARGIN_CELLS - 1.0) * dx - 1e-6
-
-
 RESOLUTION = """\
 scene: {{source: "builtin:sphere", scale: {scale}, translate: [0, 0, {z}], max_particles: 500}}
 prompt: "A rubber ball falls onto the floor."

@@ -348,7 +348,6 @@ def fit_domain(
         down = np.maximum(np.asarray(motion[0], dtype=np.float64), -MOTION_CAP * ext)
         up = np.minimum(np.asarray(motion[1], dtype=np.float64), MOTION_CAP * ext)
         lo, hi = _stop_at_planes(lo, hi, lo + down, hi + up, boundary_conditions)
-    body_lo, body_hi = lo.copy(), hi.copy()
     lo = lo - 0.5 * ext
     hi = hi + 0.5 * ext
     for bc in boundary_conditions:
@@ -364,31 +363,10 @@ def fit_domain(
         lo = np.minimum(lo, q)
         hi = np.maximum(hi, q)
     dx = float((hi - lo).max()) / (grid - 2 * PAD_CELLS)
-    for _ in range(8):
-        # at least MIN_MARGIN_CELLS cells between the body and the material box's faces:
-        # a small object far above its floor spans few cells, and 0.5 x its extent can be
-        # under one cell, which the alignment of the floor between grid nodes may take
-        # (not past a collider plane the body stands on or falls onto: material stops there)
-        need = MIN_MARGIN_CELLS * dx
-        floor_lo, floor_hi = _planes_within(body_lo, body_hi, need, boundary_conditions)
-        grown_lo = np.where(floor_lo, lo, np.minimum(lo, body_lo - need))
-        grown_hi = np.where(floor_hi, hi, np.maximum(hi, body_hi + need))
-        if np.array_equal(grown_lo, lo) and np.array_equal(grown_hi, hi):
-            break
-        lo, hi = grown_lo, grown_hi
-        dx = float((hi - lo).max()) / (grid - 2 * PAD_CELLS)
     lo = lo - PAD_CELLS * dx
     hi = hi + PAD_CELLS * dx
     dx, dims, hi = _grid_from_box(lo, hi, grid)
     return lo, dx, dims, hi
-
-
-MIN_MARGIN_CELLS = 2.0
-"""Cells a fitted material box leaves at least between the body (grown by its motion) and
-each face. Aligning a floor plane half-way between nodes moves the box by up to one cell,
-and material within ``WALL_REACH_CELLS`` (0.5) of a face counts as having reached it: with
-a margin of 0.5 x the extent alone, a 6 cm ring dropped from 0.3 m at ``grid: 16`` started
-0.4 cells from the top face (a false 'reached the domain wall z+ at frame 0')."""
 
 
 WALL_PHASE = 0.5
@@ -952,30 +930,6 @@ def _grown_box(points, sim_cfg, forces, boundary_conditions, material_class, vel
     grown_lo = lo + np.maximum(down, -MOTION_CAP * ext)
     grown_hi = hi + np.minimum(up, MOTION_CAP * ext)
     return _stop_at_planes(lo, hi, grown_lo, grown_hi, boundary_conditions)
-
-
-def _planes_within(lo, hi, reach: float, boundary_conditions):
-    """Per axis, whether an axis-aligned non-cut collider plane facing into the box
-    ``lo``/``hi`` lies at most ``reach`` [m] beyond (or inside) its low / high face:
-    ``(low (3,) bool, high (3,) bool)``."""
-    low = np.zeros(3, dtype=bool)
-    high = np.zeros(3, dtype=bool)
-    for bc in boundary_conditions:
-        if _get(bc, "type") != "surface_collider" or _get(bc, "mode") == "cut":
-            continue
-        n = np.asarray(_get(bc, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
-        p = np.asarray(_get(bc, "point", (0.0, 0.0, 0.0)), dtype=np.float64)
-        nn = float(np.linalg.norm(n))
-        if not nn > 0:
-            continue
-        a = int(np.argmax(np.abs(n)))
-        if abs(abs(n[a]) / nn - 1.0) > 1e-9:
-            continue
-        if n[a] > 0 and p[a] >= lo[a] - reach:
-            low[a] = True
-        elif n[a] < 0 and p[a] <= hi[a] + reach:
-            high[a] = True
-    return low, high
 
 
 def _stop_at_planes(lo, hi, grown_lo, grown_hi, boundary_conditions):
