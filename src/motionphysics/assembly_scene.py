@@ -120,13 +120,9 @@ def resolution_line(sim_scene) -> str | None:
     oid = getattr(sim_scene, "object_id", None)
     ids = np.zeros(len(x), dtype=np.int64) if oid is None else np.asarray(oid.cpu().numpy())
     objs = np.unique(ids)
-    worst: tuple[float, int] | None = None
-    for k in objs:
-        p = x[ids == k]
-        cells = float((p.max(axis=0) - p.min(axis=0)).max()) / dx
-        if worst is None or cells < worst[0]:
-            worst = (cells, int(k))
-    cells, k = worst
+    span = {int(k): float(np.ptp(x[ids == k], axis=0).max()) / dx for k in objs}
+    k = min(span, key=span.get)
+    cells = span[k]
     if cells >= MIN_RESOLVED_CELLS:
         return None
     who = "the object" if len(objs) == 1 else f"object {k + 1} of {len(objs)}"
