@@ -10,6 +10,21 @@
   (:func:`~motionphysics.optimize.prior_bench.build_random_prior`), so the figure is the
   simulation and rendering cost plus a small prior; the prior's own cost at the
   published size is ``bench prior``.
+- ``bench iteration --prior motion [--config FILE] [--repeats N] [--json]``: one LMD
+  iteration of ``run --prior motion`` (the embedded motion prior, which observes the
+  simulated states: nothing is rendered) with the shipped weights and the loss options
+  ``run`` gives it, split into ``simulate`` (theta -> sim values and the rollout that
+  records its tape for the backward), ``loss`` (of it ``features``: the prior's
+  ``encode_states``, and ``predict``: its denoiser over every diffusion draw; the rest
+  is the extractor's own training step), ``backward_prior`` (until the gradient reaches
+  the simulated states) and ``backward_sim`` (from there to theta). The reference is a
+  forward no-grad ``simulate`` of the same frames; iteration and forward alternate
+  ``--repeats`` times after one warm-up each, and every figure is the median over the
+  rounds (``ratio_to_forward``: median iteration / median forward;
+  ``ratio_per_round``: each round's, whose median is ``ratio_median_of_rounds``).
+
+``--grid``, ``--frames``, ``--particles``, ``--substeps`` override the config's
+``sim.grid``, ``sim.frames``, ``scene.max_particles``, ``sim.substeps`` (either prior).
 
 The backward is split with tensor hooks: ``backward_prior`` ends when the gradient
 reaches the rendered frames, ``backward_render`` when it reaches the particle states,
@@ -24,17 +39,53 @@ import time
 __all__ = ["register_target", "run_iteration_bench"]
 
 
+def _overrides(device, grid, frames, particles, substeps) -> dict:
+    return {
+        "device": device,
+        "sim.grid": grid,
+        "sim.frames": frames,
+        "scene.max_particles": particles,
+        "sim.substeps": substeps,
+    }
+
+
+def _print(result: dict, json: bool, out) -> None:
+    if json:
+        out(_json.dumps(result))
+    else:
+        for k, v in result.items():
+            out(f"{k:>26}: {v}")
+
+
 def run_iteration_bench(
     config: str | None = None,
     *,
+    prior: str = "pixel",
     model: str = "cogvideox-2b",
     device: str = "cpu",
-    boost: int = 8,
+    boost: int | None = None,
     resolution: int = 64,
+    repeats: int = 3,
+    grid: int | None = None,
+    frames: int | None = None,
+    particles: int | None = None,
+    substeps: int | str | None = None,
     json: bool = False,
     out=print,
 ) -> dict:
-    """Time one LMD iteration of the refinement on ``config`` (default: the demo)."""
+    """Time one LMD iteration of the refinement on ``config`` (default: the demo).
+
+    ``prior``: ``pixel`` (a tiny random-weights video prior of ``model``: simulate,
+    render, prior, backward; one timed iteration) or ``motion`` (the embedded motion
+    prior on the simulated states: :func:`run_motion_iteration_bench`)."""
+    if prior == "motion":
+        return run_motion_iteration_bench(
+            config, device=device, boost=boost, repeats=repeats, grid=grid, frames=frames,
+            particles=particles, substeps=substeps, json=json, out=out,
+        )  # fmt: skip
+    if prior != "pixel":
+        raise ValueError(f"bench iteration: unknown prior {prior!r} (pixel or motion)")
+    boost = 8 if boost is None else int(boost)
     from importlib.resources import files
 
     import torch
@@ -52,7 +103,7 @@ def run_iteration_bench(
     check_model(model, "bench iteration")
     set_threads()
     path = config or str(files("motionphysics.commands") / "demo.yaml")
-    cfg = load_run_config(path, {"device": device})
+    cfg = load_run_config(path, _overrides(device, grid, frames, particles, substeps))
     dev = check_device(cfg.device)
     t0 = time.perf_counter()
     parts = assemble(cfg, dev, needs_grad=True, reference_image=False, config_origin=path)
@@ -146,11 +197,163 @@ def run_iteration_bench(
         **{k: round(v, 4) for k, v in fwd.items()},
         "ratio_to_forward": round(it["iteration_s"] / fwd_total, 2),
     }
-    if json:
-        out(_json.dumps(result))
-    else:
-        for k, v in result.items():
-            out(f"{k:>20}: {v}")
+    _print(result, json, out)
+    return result
+
+
+def run_motion_iteration_bench(
+    config: str | None = None,
+    *,
+    device: str = "cpu",
+    boost: int | None = None,
+    repeats: int = 3,
+    grid: int | None = None,
+    frames: int | None = None,
+    particles: int | None = None,
+    substeps: int | str | None = None,
+    json: bool = False,
+    out=print,
+) -> dict:
+    """One LMD iteration of ``run --prior motion`` on ``config`` (default: the demo),
+    split, against a forward simulate of the same frames (see the module docstring)."""
+    import statistics
+    from importlib.resources import files
+
+    import torch
+
+    from motionphysics.assembly import assemble
+    from motionphysics.losses.base import LossBuildContext, LossContext
+    from motionphysics.optimize.boosting import frames_for_iteration
+    from motionphysics.optimize.fit import build_problem
+    from motionphysics.optimize.refine import _boost_for_prior, build_losses, scene_context
+    from motionphysics.priors import load_prior
+    from motionphysics.runconfig import load_run_config
+    from motionphysics.runtime import check_device, set_threads
+
+    if repeats < 1:
+        raise ValueError("bench iteration: --repeats must be >= 1")
+    set_threads()
+    path = config or str(files("motionphysics.commands") / "demo.yaml")
+    over = _overrides(device, grid, frames, particles, substeps)
+    over["optimize.prior"] = "motion"
+    if boost is not None:
+        over["optimize.boost"] = int(boost)
+    cfg = load_run_config(path, over)
+    dev = check_device(cfg.device)
+    t0 = time.perf_counter()
+    parts = assemble(cfg, dev, needs_grad=True, reference_image=False, config_origin=path)
+    prior = load_prior("motion", cfg.optimize.prior_path, device=dev)
+    prior.set_prompt(cfg.prompt)
+    prior.set_scene(scene_context(parts))
+    bctx = LossBuildContext(
+        prompt=cfg.prompt,
+        prior=prior,
+        num_frames=int(cfg.sim.frames),
+        frame_dt=float(cfg.sim.frame_dt),
+        out_dir=None,
+        device=dev,
+        seed=int(cfg.optimize.seed),
+        height=int(cfg.camera.height),
+        width=int(cfg.camera.width),
+        num_particles=parts.num_particles,
+    )
+    loss = build_losses(cfg, bctx)  # what run builds: the prior's loss defaults included
+    problem = build_problem(parts, loss)
+    opt_cfg, _ = _boost_for_prior(cfg, prior)  # run's boost, capped for the prior's frames
+    setup_s = time.perf_counter() - t0
+    num_frames = int(cfg.sim.frames)
+    sim_frames = frames_for_iteration(0, num_frames, int(opt_cfg.boost))
+
+    split = {"features": 0.0, "predict": 0.0}
+
+    def timed(name, fn):
+        def wrapper(*a, **k):
+            t = time.perf_counter()
+            r = fn(*a, **k)
+            split[name] += time.perf_counter() - t
+            return r
+
+        return wrapper
+
+    prior.encode_states = timed("features", prior.encode_states)
+    prior.predict = timed("predict", prior.predict)
+    rng = torch.Generator().manual_seed(int(cfg.optimize.seed))
+
+    def one_iteration(i: int) -> dict[str, float]:
+        for k in split:
+            split[k] = 0.0
+        theta = problem.initial_theta()
+        timings: dict[str, float] = {}
+        t_start = time.perf_counter()
+        pred = problem.forward(theta, sim_frames, opt_cfg.grad_mode, opt_cfg.window, timings)
+        marks: dict[str, float] = {}
+
+        def hook(grad):  # records when the gradient reaches the states; grad unchanged
+            marks.setdefault("xs", time.perf_counter())
+
+        pred.xs.register_hook(hook)
+        t1 = time.perf_counter()
+        value = loss(pred, LossContext(iteration=i, num_frames=num_frames, rng=rng))
+        t2 = time.perf_counter()
+        value.backward()
+        t3 = time.perf_counter()
+        grads = [theta[n].grad for n in problem.theta_map.names]
+        if any(g is None or not torch.isfinite(g).all() for g in grads):
+            raise RuntimeError("bench iteration: no finite gradient reached theta")
+        t_xs = marks.get("xs", t3)
+        return {
+            "simulate_s": timings["simulate"],
+            "loss_s": t2 - t1,
+            "features_s": split["features"],
+            "predict_s": split["predict"],
+            "backward_prior_s": t_xs - t2,
+            "backward_sim_s": t3 - t_xs,
+            "backward_s": t3 - t2,
+            "iteration_s": t3 - t_start,
+        }
+
+    def forward() -> float:
+        t = time.perf_counter()
+        with torch.no_grad():
+            problem.simulator.simulate(
+                problem.sim_values(problem.initial_theta()), None, sim_frames, "full", 1
+            )
+        return time.perf_counter() - t
+
+    one_iteration(0)  # warm-up: Warp kernels, allocator, the tape buffers
+    forward()
+    its, fwds = [], []
+    for r in range(repeats):  # alternated, so both see the same load
+        its.append(one_iteration(r + 1))
+        fwds.append(forward())
+    med = {k: statistics.median(x[k] for x in its) for k in its[0]}
+    fwd = statistics.median(fwds)
+    per_round = [x["iteration_s"] / f for x, f in zip(its, fwds, strict=True)]
+    result = {
+        "prior": "motion",
+        "config": path,
+        "device": str(dev),
+        "particles": parts.num_particles,
+        "grid": [int(n) for n in parts.sim_scene.grid_dims],
+        "frames_supervised": len(sim_frames),
+        "frames_simulated": int(max(sim_frames)) + 1,
+        "substeps": int(problem.simulator.substeps),
+        "boost": int(opt_cfg.boost),
+        "loss": loss.label,
+        "prior_frames": int(prior.num_frames),
+        "repeats": repeats,
+        "setup_s": round(setup_s, 3),
+        **{k: round(v, 4) for k, v in med.items()},
+        "forward_simulate_s": round(fwd, 4),
+        "iteration_runs_s": [round(x["iteration_s"], 4) for x in its],
+        "forward_simulate_runs_s": [round(f, 4) for f in fwds],
+        "taped_rollout_over_forward": round(med["simulate_s"] / fwd, 3),
+        "backward_over_forward": round(med["backward_s"] / fwd, 3),
+        "ratio_to_forward": round(med["iteration_s"] / fwd, 3),
+        "ratio_per_round": [round(x, 3) for x in per_round],
+        "ratio_median_of_rounds": round(statistics.median(per_round), 3),
+    }
+    _print(result, json, out)
     return result
 
 
@@ -162,9 +365,26 @@ def _prior(args) -> int:
 
 
 def _iteration(args) -> int:
+    from motionphysics.errors import UserInputError
+
+    substeps = args.substeps
+    if substeps is not None and substeps != "auto":
+        try:
+            substeps = int(substeps)
+        except ValueError:
+            raise UserInputError(
+                f"--substeps: expected a positive integer or 'auto', got {substeps!r}"
+            ) from None
+        if substeps < 1:
+            raise UserInputError(f"--substeps: expected a positive integer, got {substeps}")
+    for name in ("repeats", "grid", "frames", "particles", "boost"):
+        v = getattr(args, name)
+        if v is not None and v < 1:
+            raise UserInputError(f"--{name}: expected a positive integer, got {v}")
     run_iteration_bench(
-        args.config, model=args.model, device=args.device, resolution=args.resolution,
-        json=args.json,
+        args.config, prior=args.prior, model=args.model, device=args.device,
+        resolution=args.resolution, boost=args.boost, repeats=args.repeats, grid=args.grid,
+        frames=args.frames, particles=args.particles, substeps=substeps, json=args.json,
     )  # fmt: skip
     return 0
 
@@ -209,10 +429,39 @@ def register_target(sub) -> None:
             "Time one whole LMD iteration of run on the demo config (simulate, render, "
             "prior, backward to the parameters) with the split of its time, as a ratio to "
             "a forward simulate and render of the same frames. The prior is a small "
-            "random-weights architecture, so the figure is mostly simulation and rendering."
+            "random-weights architecture, so the figure is mostly simulation and rendering. "
+            "With --prior motion: the embedded motion prior with its shipped weights, which "
+            "observes the simulated states (nothing is rendered); the split is simulate "
+            "(the rollout recording its tape), loss (features, predict), backward through "
+            "the prior and through the simulation, against a forward simulate of the same "
+            "frames, iteration and forward alternated --repeats times (medians)."
         ),
     )
     p.add_argument("--config", metavar="FILE", help="run config (default: the demo)")
+    p.add_argument(
+        "--prior",
+        choices=["pixel", "motion"],
+        default="pixel",
+        help="pixel: a tiny random-weights video prior (render in the loop); motion: the "
+        "embedded motion prior on the simulated states (default pixel)",
+    )
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="--prior motion: timed iterations and forwards, alternated (default 3)",
+    )
+    p.add_argument(
+        "--boost",
+        type=int,
+        default=None,
+        help="frame boosting M (default: 8 for pixel; the config's, capped for the prior, "
+        "for motion)",
+    )
+    p.add_argument("--grid", type=int, default=None, help="override sim.grid")
+    p.add_argument("--frames", type=int, default=None, help="override sim.frames")
+    p.add_argument("--particles", type=int, default=None, help="override scene.max_particles")
+    p.add_argument("--substeps", default=None, help="override sim.substeps (integer or 'auto')")
     p.add_argument(
         "--model",
         choices=models,
