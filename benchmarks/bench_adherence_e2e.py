@@ -17,6 +17,11 @@ seeds: the spread of their scores is the run-to-run noise a loss is judged again
 
     python benchmarks/bench_adherence_e2e.py --iters 8 --seeds 2 --workers 1 --out DIR
 
+``--size M`` scales every object so that its longest side is M metres (default: scale 0.3
+for each source, which makes the donut capture a 6 cm ring, 1.5-2.5 cells at grid 16-24:
+unresolved); each row reports ``cells``, the object's longest side over the grid spacing
+at frame 0 (under 4 its deformation is the grid's, not the material's).
+
 Prints JSON: one row per scene/prompt (group, prompt, kb class, start and end
 parameters, adherence before and after per seed, change, noise) and the means.
 """
@@ -43,24 +48,53 @@ from motionphysics.language.captions import GROUPS, group_prompt  # noqa: E402
 SCENES = ("real", "mesh", "builtin")
 
 
-def _scenes(tmp: Path, which: list[str], particles: int) -> dict[str, tuple[dict, str]]:
+def _scale(source: str, size: float | None) -> float:
+    """The scene scale that makes ``source``'s longest side ``size`` metres (0.3 when
+    ``size`` is None: the scale these benchmarks always used, whatever the source's size)."""
+    if size is None:
+        return 0.3
+    import numpy as np
+
+    from motionphysics.scene import load_scene
+
+    means = load_scene(source).means.double().numpy()
+    return float(size) / float(np.ptp(means, axis=0).max())
+
+
+def _scenes(
+    tmp: Path, which: list[str], particles: int, size: float | None = None
+) -> dict[str, tuple[dict, str]]:
     """name -> (scene block, shape used for the prompt's noun)."""
     out: dict[str, tuple[dict, str]] = {}
     if "real" in which:
         if not REAL.is_file():
             raise SystemExit(f"{REAL}: the real capture is not there (leave out 'real')")
-        block = {"source": str(REAL), "scale": 0.3, "translate": [0, 0, 0.3]}
+        block = {"source": str(REAL), "scale": _scale(str(REAL), size), "translate": [0, 0, 0.3]}
         out["donut (real 3DGS)"] = ({**block, "max_particles": particles}, "torus")
     if "mesh" in which:
-        block = {"source": str(_mesh(tmp)), "scale": 0.3, "rotate": [["x", 70]]}
+        src = str(_mesh(tmp))
+        block = {"source": src, "scale": _scale(src, size), "rotate": [["x", 70]]}
         out["capsule (mesh)"] = (
             {**block, "translate": [0, 0, 0.3], "max_particles": particles},
             "rod",
         )
     if "builtin" in which:
-        block = {"source": "builtin:duck", "scale": 0.3, "translate": [0, 0, 0.3]}
+        src = "builtin:duck"
+        block = {"source": src, "scale": _scale(src, size), "translate": [0, 0, 0.3]}
         out["duck (builtin)"] = ({**block, "max_particles": particles}, "duck")
     return out
+
+
+def _cells(run: Path) -> float | None:
+    """The object's longest side at frame 0 over the grid spacing."""
+    try:
+        import numpy as np
+
+        x0 = np.load(run / "trajectory.npz")["x"][0]
+        dx = json.loads((run / "params.json").read_text())["sim_context"]["dx"]
+        return float(np.ptp(x0, axis=0).max()) / float(dx)
+    except (OSError, KeyError, ValueError):
+        return None
 
 
 def _config(scene: dict, prompt: str, grid: int, frames: int) -> dict:
@@ -116,6 +150,7 @@ def _run(cfg: dict, out: Path, extra: list[str], reuse: bool = False) -> dict:
         "score": adh.get("score"),
         "explanations": adh.get("explanations"),
         "motion": motion,
+        "cells": _cells(out / "run"),
         "seconds": time.perf_counter() - t0,
     }
 
@@ -131,6 +166,9 @@ def main() -> None:
     ap.add_argument("--particles", type=int, default=1500, help="scene.max_particles")
     ap.add_argument("--grid", type=int, default=24, help="sim.grid")
     ap.add_argument("--frames", type=int, default=16, help="sim.frames (0.05 s apart)")
+    ap.add_argument(
+        "--size", type=float, default=None, help="longest side of every object [m] (default: scale 0.3)"
+    )
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
         "--reuse", action="store_true", help="keep complete runs of the same config in --out"
@@ -139,7 +177,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         out = args.out or tmp / "runs"
-        scenes = _scenes(tmp, args.scenes, args.particles)
+        scenes = _scenes(tmp, args.scenes, args.particles, args.size)
         jobs = []
         for sname, (scene, shape) in scenes.items():
             for g in args.groups:
@@ -174,6 +212,7 @@ def main() -> None:
                 "group": g,
                 "prompt": group_prompt(g, shape, args.phrasing),
                 "class": kb.get("class"),
+                "cells": kb.get("cells"),
                 "start": kb.get("params"),
                 "ends": [r.get("params") for r in refined],
                 "before": before,
