@@ -60,6 +60,10 @@ class SolverConfig:
     """Below this many particles per chunk, threading costs more than it saves."""
     active_region: bool = True
     """CPU only: zero and update only the grid nodes around the particles' bounding box."""
+    fuse_elastic_p2g: bool = True
+    """Untaped substeps of a one-object, all-elastic scene run the stress and P2G as one
+    kernel (``kernels._stress_elastic_p2g``, same results); False: two launches, as
+    under a tape (for comparisons)."""
 
 
 @dataclass
@@ -437,15 +441,53 @@ class Solver:
                 self.chunks if self.num_objects > 1 else 0,
             ]
 
+        if (
+            self.config.fuse_elastic_p2g
+            and _active_tape() is None
+            and self.classes == (_k.ELASTIC_CLASS,)
+            and self.num_objects == 1
+        ):
+            # untaped, all elastic, one object: stress and P2G fused in one pass
+            self._chunked(
+                lambda c, start, n: wp.launch(
+                    _k._stress_elastic_p2g,
+                    dim=n,
+                    inputs=[
+                        state_in.x,
+                        state_in.v,
+                        state_in.C,
+                        state_in.F,
+                        state_in.ep,
+                        state_in.active,
+                        m.volume,
+                        pr["density"],
+                        pr["E"],
+                        pr["nu"],
+                        self._lo,
+                        m.dx,
+                        dt,
+                        self._dims,
+                        start,
+                        c,
+                        wp_off,
+                    ],
+                    outputs=[state_out.F, state_out.ep, mv],
+                    device=m.device,
+                )
+            )
+            fused = True
+        else:
+            fused = False
         # chunks write disjoint particles and their own private grid: no shared adjoints
-        for cid in self.classes:
+        for cid in () if fused else self.classes:
             if cid == _k.ELASTIC_CLASS:
                 self._elastic_stress(stress_inputs, state_in, state_out, affine, grid)
                 continue
             self._launch_chunks(
                 _k.STRESS_KERNELS[cid], stress_inputs, [state_out.F, state_out.ep, affine]
             )
-        self._p2g(p2g_inputs, affine, mv, state_in)
+        if not fused:
+            self._p2g(p2g_inputs, affine, mv, state_in)
         if self.num_objects == 1:
             wp.launch(
                 _k._grid_update,
