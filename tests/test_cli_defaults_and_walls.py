@@ -297,8 +297,8 @@ def test_a_small_object_high_above_the_floor_starts_clear_of_the_top_wall(
 ):
     """``simulate CONFIG``: a small ball dropped from high above the default floor. The
     fitted domain puts the floor half-way between grid nodes, which shifts the grid down by
-    up to a cell; the grid gains the node this takes from the top instead of clipping the
-    material box, so the ball starts with room above it and no warning says it 'reached
+    up to a cell and can leave the ball starting a fraction of a cell below the top face.
+    That is its placement, not a motion: it falls away, and no warning says it 'reached
     the domain wall z+ at frame 0' (it did, for a 6 cm ring 0.3 m up at grid 16)."""
     cfg = tmp_path / "drop.yaml"
     cfg.write_text(DROP.format(scale=scale, z=z, grid=grid), encoding="utf-8")

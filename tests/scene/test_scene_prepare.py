@@ -175,12 +175,8 @@ def test_fitted_domain_contains_particles_and_ground(sphere):
     lo, hi, dx = out.domain_lo.double(), out.domain_hi.double(), out.dx
     nodes = torch.tensor(out.grid_dims, dtype=torch.float64)
     torch.testing.assert_close(hi, lo + (nodes - 1) * dx)
-    # sim.grid cells along the longest side, or one more where putting the ground half-way
-    # between nodes shifted the origin down and the high walls would otherwise lose room
-    cells = (hi - lo).max().item() / dx
-    assert abs(cells - round(cells)) < 1e-5 * sim.grid
-    assert round(cells) in (sim.grid, sim.grid + 1)
-    assert out.grid_dims[int((hi - lo).argmax())] == round(cells) + 1
+    assert abs((hi - lo).max().item() - sim.grid * dx) < 1e-5 * dx * sim.grid
+    assert out.grid_dims[int((hi - lo).argmax())] == sim.grid + 1
     p = out.particles.double()
     assert bool((p.min(0).values >= lo + PAD_CELLS * dx - 1e-6).all())
     assert bool((p.max(0).values <= hi - PAD_CELLS * dx + 1e-6).all())

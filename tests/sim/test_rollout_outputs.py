@@ -89,3 +89,31 @@ def test_rollout_records_the_first_frame_material_reaches_a_domain_wall():
     assert [h["wall"] for h in sim.last.wall_hits] == ["x+"]
     assert 6 <= sim.last.wall_hits[0]["frame"] <= 9, sim.last.wall_hits
     assert xs[..., 0].max() <= 0.9 + 1e-5  # and the wall holds it
+
+
+def _watch(dx: float = 0.1):
+    from motionphysics.sim.rollout import _WallWatch
+
+    model = SimpleNamespace(wall_box=(np.zeros(3), np.ones(3)), dx=dx, boundary=None)
+    return _WallWatch(model)
+
+
+def test_a_wall_the_material_starts_near_counts_only_once_it_comes_nearer():
+    """Frame 0 is where the scene was placed: material that starts 0.3 cells below the top
+    face and falls away has not reached it; material that starts there and rises by 0.2
+    cells has (and is reported at that frame); a face first reached later counts as
+    before."""
+    x0 = np.array([[0.5, 0.5, 0.97], [0.5, 0.5, 0.6]])  # top 0.3 cells (dx 0.1) from z+
+    on = np.ones(2)
+    falling = _watch()
+    for f, dz in enumerate((0.0, -0.001, -0.01, -0.05)):
+        falling.check(f, x0 + [0, 0, dz], on)
+    assert falling.hits == []
+    rising = _watch()
+    for f, dz in enumerate((0.0, 0.005, 0.02)):
+        rising.check(f, x0 + [0, 0, dz], on)
+    assert rising.hits == [{"frame": 2, "wall": "z+"}]
+    sliding = _watch()
+    for f, dx_ in enumerate((0.0, 0.2, 0.46)):  # reaches x+ (0.04 m = 0.4 cells) at frame 2
+        sliding.check(f, x0 + [dx_, 0, -0.2], on)
+    assert sliding.hits == [{"frame": 2, "wall": "x+"}]

@@ -427,22 +427,19 @@ def _wall_targets(walls_lo: np.ndarray, walls_hi: np.ndarray, boundary_condition
 
 def _aligned_grid(walls_lo, walls_hi, dx: float, targets, dims=None):
     """Grid origin with every target plane half-way between two nodes (``WALL_PHASE``) and at
-    least PAD_CELLS cells beyond the walls. Returns (grid lo, dims, grid hi, walls hi).
-    ``dims`` given (the fitted domain's node count) is kept, or grown by the one node per
-    axis that the shift of the origin onto the targets' phase takes from the high side:
-    the material box never loses room at its high walls (before, a small object high
-    above a floor could start inside the top wall's cell and be reported as having
-    reached it at frame 0). The high walls end PAD_CELLS cells inside the last node."""
+    least PAD_CELLS cells beyond the walls. Returns (grid lo, dims, grid hi, walls hi):
+    ``dims`` given (the fitted domain keeps its node count), the high walls end PAD_CELLS
+    cells inside the last node instead."""
     walls_lo = np.asarray(walls_lo, dtype=np.float64)
     walls_hi = np.asarray(walls_hi, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
     m = np.ceil((targets - walls_lo) / dx + PAD_CELLS - WALL_PHASE - 1e-9)
     g_lo = targets - (m + WALL_PHASE) * dx
-    need = tuple(
-        int(math.ceil((h + PAD_CELLS * dx - g) / dx - 1e-9)) + 1
-        for g, h in zip(g_lo, walls_hi, strict=True)
-    )
-    dims = need if dims is None else tuple(max(int(d), n) for d, n in zip(dims, need, strict=True))
+    if dims is None:
+        dims = tuple(
+            int(math.ceil((h + PAD_CELLS * dx - g) / dx - 1e-9)) + 1
+            for g, h in zip(g_lo, walls_hi, strict=True)
+        )
     g_hi = g_lo + (np.asarray(dims) - 1) * dx
     walls_hi = np.minimum(walls_hi, g_hi - PAD_CELLS * dx)
     return g_lo, tuple(int(d) for d in dims), g_hi, walls_hi

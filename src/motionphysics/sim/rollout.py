@@ -458,7 +458,11 @@ class _WallWatch:
     """Records the first frame in which active material comes within WALL_REACH_CELLS of
     each face of the model's material box (``Model.wall_box``), except faces that a
     collider plane covers (an axis-aligned non-cut ``surface_collider`` facing into the
-    box within half a cell of the face)."""
+    box within half a cell of the face). Where the material already is at frame 0 is its
+    placement, not a motion: a face it starts within reach of counts only once the
+    material comes nearer to it than it started (by a tenth of a cell). A small object
+    dropped from high up at a coarse grid starts a fraction of a cell below the top face
+    and falls away; it was reported as having reached the top wall at frame 0."""
 
     NAMES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -466,8 +470,10 @@ class _WallWatch:
         lo, hi = model.wall_box
         self.lo, self.hi = np.asarray(lo), np.asarray(hi)
         self.reach = WALL_REACH_CELLS * model.dx
+        self.closer = 0.1 * model.dx
         self.hits: list[dict] = []
         self.seen: set[str] = set()
+        self.start: dict[str, float] = {}  # faces within reach at frame 0: distance then
         prog = getattr(model, "boundary", None)
         for op in getattr(prog, "_plane_ops", ()):
             n = np.asarray(op.scalars["normal"], dtype=np.float64)
@@ -487,12 +493,13 @@ class _WallWatch:
             return
         lo, hi = live.min(axis=0), live.max(axis=0)
         for a in range(3):
-            for side, reached in (
-                ("-", lo[a] <= self.lo[a] + self.reach),
-                ("+", hi[a] >= self.hi[a] - self.reach),
-            ):
+            for side, dist in (("-", lo[a] - self.lo[a]), ("+", self.hi[a] - hi[a])):
                 name = "xyz"[a] + side
-                if reached and name not in self.seen:
+                if dist > self.reach or name in self.seen:
+                    continue
+                if frame == 0:
+                    self.start[name] = float(dist)
+                elif name not in self.start or dist < self.start[name] - self.closer:
                     self.seen.add(name)
                     self.hits.append({"frame": int(frame), "wall": name})
 
