@@ -225,6 +225,7 @@ def run_motion_iteration_bench(
     from motionphysics.losses.base import LossBuildContext, LossContext
     from motionphysics.optimize.boosting import frames_for_iteration
     from motionphysics.optimize.fit import build_problem
+    from motionphysics.optimize.loop import iteration_threads
     from motionphysics.optimize.refine import _boost_for_prior, build_losses, scene_context
     from motionphysics.priors import load_prior
     from motionphysics.runconfig import load_run_config
@@ -284,19 +285,20 @@ def run_motion_iteration_bench(
             split[k] = 0.0
         theta = problem.initial_theta()
         timings: dict[str, float] = {}
-        t_start = time.perf_counter()
-        pred = problem.forward(theta, sim_frames, opt_cfg.grad_mode, opt_cfg.window, timings)
         marks: dict[str, float] = {}
 
         def hook(grad):  # records when the gradient reaches the states; grad unchanged
             marks.setdefault("xs", time.perf_counter())
 
-        pred.xs.register_hook(hook)
-        t1 = time.perf_counter()
-        value = loss(pred, LossContext(iteration=i, num_frames=num_frames, rng=rng))
-        t2 = time.perf_counter()
-        value.backward()
-        t3 = time.perf_counter()
+        with iteration_threads(loss):  # as the optimisation loop runs an iteration
+            t_start = time.perf_counter()
+            pred = problem.forward(theta, sim_frames, opt_cfg.grad_mode, opt_cfg.window, timings)
+            pred.xs.register_hook(hook)
+            t1 = time.perf_counter()
+            value = loss(pred, LossContext(iteration=i, num_frames=num_frames, rng=rng))
+            t2 = time.perf_counter()
+            value.backward()
+            t3 = time.perf_counter()
         grads = [theta[n].grad for n in problem.theta_map.names]
         if any(g is None or not torch.isfinite(g).all() for g in grads):
             raise RuntimeError("bench iteration: no finite gradient reached theta")

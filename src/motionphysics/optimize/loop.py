@@ -33,6 +33,7 @@ import os
 import random
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,6 +55,7 @@ from motionphysics.optimize.checkpoint import (
 )
 from motionphysics.optimize.problem import Problem
 from motionphysics.optimize.schedule import learning_rates
+from motionphysics.runtime import single_thread
 
 __all__ = [
     "CALM_ITERATIONS",
@@ -173,6 +175,16 @@ def _restore_simulator(simulator: Any, state: dict[str, Any]) -> None:
 
 def _flat(theta: dict[str, Tensor]) -> Tensor:
     return torch.cat([t.detach().reshape(-1).double() for t in theta.values()])
+
+
+def iteration_threads(loss):
+    """The torch threads of one iteration (forward, loss, backward) as a context: a loss on
+    the simulated states (a trajectory, the motion prior) is many small torch ops, so one
+    torch thread (:func:`motionphysics.runtime.single_thread`; the simulation keeps its own
+    threads); a loss on rendered frames keeps the count set (a video prior's network).
+    With 2 threads on a busy 2-core machine the motion prior's 8 predictions of one
+    iteration took 2.5 s instead of 0.017 s (BENCHMARKS.md, issue 26)."""
+    return nullcontext() if loss.needs_render else single_thread()
 
 
 def optimize(
@@ -299,20 +311,24 @@ def optimize(
         opt.zero_grad(set_to_none=True)
         loss_value = float("nan")
         try:
-            pred = problem.forward(theta, frames, cfg.grad_mode, cfg.window, timings)
-            t0 = time.perf_counter()
-            loss = problem.loss(
-                pred,
-                LossContext(
-                    iteration=it, num_frames=num_frames, rng=generator, extras=dict(extras or {})
-                ),
-            )
-            loss_value = float(loss.detach())
-            timings["loss"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            if math.isfinite(loss_value):
-                loss.backward()
-            timings["backward"] = time.perf_counter() - t0
+            with iteration_threads(problem.loss):
+                pred = problem.forward(theta, frames, cfg.grad_mode, cfg.window, timings)
+                t0 = time.perf_counter()
+                loss = problem.loss(
+                    pred,
+                    LossContext(
+                        iteration=it,
+                        num_frames=num_frames,
+                        rng=generator,
+                        extras=dict(extras or {}),
+                    ),
+                )
+                loss_value = float(loss.detach())
+                timings["loss"] = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                if math.isfinite(loss_value):
+                    loss.backward()
+                timings["backward"] = time.perf_counter() - t0
         except SimulationError as err:
             stop_reason = "nan"
             message = (

@@ -35,9 +35,10 @@ import torch
 from torch import Tensor, nn
 
 from motionphysics.errors import UserInputError
+from motionphysics.language.text import TEXT_DIM, sentence_embeddings
 from motionphysics.priors.base import TextEmbeddings, VideoPrior
 from motionphysics.priors.motion_features import NUM_FEATURES, MotionScene, clip_features
-from motionphysics.language.text import TEXT_DIM, sentence_embeddings
+from motionphysics.runtime import single_thread
 
 __all__ = [
     "DEFAULT_WEIGHTS",
@@ -274,9 +275,14 @@ class MotionPrior(VideoPrior):
 
     def model_output(self, z_t: Tensor, t: Tensor, text: Tensor) -> Tensor:
         z = z_t.to(self.device, torch.float32)[:, :, :, 0, 0]
-        out = self.net(
-            z, t.to(self.device), text.to(self.device, torch.float32).reshape(len(z), -1)
-        )
+        args = (z, t.to(self.device), text.to(self.device, torch.float32).reshape(len(z), -1))
+        if torch.device(self.device).type == "cpu":
+            # a few clips through a 0.4M-parameter network: many small ops, one thread
+            # (runtime.single_thread: 2 threads were 150x slower on a busy machine)
+            with single_thread():
+                out = self.net(*args)
+        else:
+            out = self.net(*args)
         return out[:, :, :, None, None]
 
     def sample(

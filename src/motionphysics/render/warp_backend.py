@@ -20,7 +20,6 @@ render); kernels are private.
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from functools import cache
 
 import torch
@@ -34,6 +33,7 @@ from motionphysics.render.core import (
     finish,
     project_gaussians,
 )
+from motionphysics.runtime import single_thread
 
 C = 5  # channels composited: r, g, b, depth, 1 (sum of weights, for the depth normalisation)
 
@@ -438,20 +438,9 @@ class _RasterWarp(torch.autograd.Function):
         )
 
 
-@contextmanager
-def _single_thread():
-    """Run torch ops on one thread: the renderer's torch work is many small ops, and
-    OpenMP regions on a busy shared machine wait for a free core at every op (measured
-    up to 50x slower at 2 threads under load). The Warp kernels use their own bands."""
-    n = torch.get_num_threads()
-    if n == 1:
-        yield n
-        return
-    torch.set_num_threads(1)
-    try:
-        yield n
-    finally:
-        torch.set_num_threads(n)
+_single_thread = single_thread
+"""The renderer's torch work is many small ops: one thread (the Warp kernels use their own
+bands)."""
 
 
 class _RenderWarp(torch.autograd.Function):
