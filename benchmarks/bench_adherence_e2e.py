@@ -177,7 +177,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         out = args.out or tmp / "runs"
-        scenes = _scenes(tmp, args.scenes, args.particles, args.size)
+        out.mkdir(parents=True, exist_ok=True)
+        # the mesh beside the runs: its path is in every config, so --reuse finds them again
+        scenes = _scenes(out, args.scenes, args.particles, args.size)
         jobs = []
         for sname, (scene, shape) in scenes.items():
             for g in args.groups:
