@@ -281,14 +281,6 @@ def test_an_object_a_few_cells_across_is_told_it_is_not_resolved(
         assert not lines and "resolution" not in params["scene"], err
 
 
-DROP = """\
-scene: {{source: "builtin:sphere", scale: {scale}, translate: [0, 0, {z}], max_particles: 400}}
-prompt: "A rubber ball falls onto the floor."
-sim: {{grid: {grid}, frames: 2, frame_dt: 0.02, substeps: auto}}
-camera: {{width: 16, height: 16}}
-"""
-
-
 @pytest.mark.parametrize(
     "scale, z, grid", [(0.06, 0.3, 16), (0.1, 0.7, 20), (0.05, 0.5, 32)]
 )
@@ -301,7 +293,7 @@ def test_a_small_object_high_above_the_floor_starts_clear_of_the_top_wall(
     That is its placement, not a motion: it falls away, and no warning says it 'reached
     the domain wall z+ at frame 0' (it did, for a 6 cm ring 0.3 m up at grid 16)."""
     cfg = tmp_path / "drop.yaml"
-    cfg.write_text(DROP.format(scale=scale, z=z, grid=grid), encoding="utf-8")
+    cfg.write_text(RESOLUTION.format(scale=scale, z=z, grid=grid), encoding="utf-8")
     out = tmp_path / "out"
     assert main(["simulate", str(cfg), "--out", str(out)]) == 0
     err = capsys.readouterr().err
