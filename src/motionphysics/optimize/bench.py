@@ -39,6 +39,18 @@ import time
 __all__ = ["register_target", "run_iteration_bench"]
 
 
+def _timed(split: dict[str, float], name: str, fn):
+    """``fn`` wrapped to add its wall time to ``split[name]`` (the prior's parts of a loss)."""
+
+    def wrapper(*a, **k):
+        t = time.perf_counter()
+        r = fn(*a, **k)
+        split[name] += time.perf_counter() - t
+        return r
+
+    return wrapper
+
+
 def _overrides(device, grid, frames, particles, substeps) -> dict:
     return {
         "device": device,
@@ -116,17 +128,8 @@ def run_iteration_bench(
 
     split = {"encode": 0.0, "predict": 0.0}
 
-    def timed(name, fn):
-        def wrapper(*a, **k):
-            t = time.perf_counter()
-            r = fn(*a, **k)
-            split[name] += time.perf_counter() - t
-            return r
-
-        return wrapper
-
-    prior.encode = timed("encode", prior.encode)
-    prior.predict = timed("predict", prior.predict)
+    prior.encode = _timed(split, "encode", prior.encode)
+    prior.predict = _timed(split, "predict", prior.predict)
 
     def one_iteration() -> dict[str, float]:
         for k in split:
@@ -267,17 +270,8 @@ def run_motion_iteration_bench(
 
     split = {"features": 0.0, "predict": 0.0}
 
-    def timed(name, fn):
-        def wrapper(*a, **k):
-            t = time.perf_counter()
-            r = fn(*a, **k)
-            split[name] += time.perf_counter() - t
-            return r
-
-        return wrapper
-
-    prior.encode_states = timed("features", prior.encode_states)
-    prior.predict = timed("predict", prior.predict)
+    prior.encode_states = _timed(split, "features", prior.encode_states)
+    prior.predict = _timed(split, "predict", prior.predict)
     rng = torch.Generator().manual_seed(int(cfg.optimize.seed))
 
     def one_iteration(i: int) -> dict[str, float]:
