@@ -167,7 +167,10 @@ def main() -> None:
     ap.add_argument("--grid", type=int, default=24, help="sim.grid")
     ap.add_argument("--frames", type=int, default=16, help="sim.frames (0.05 s apart)")
     ap.add_argument(
-        "--size", type=float, default=None, help="longest side of every object [m] (default: scale 0.3)"
+        "--size",
+        type=float,
+        default=None,
+        help="longest side of every object [m] (default: scale 0.3)",
     )
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(

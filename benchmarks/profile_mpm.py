@@ -80,7 +80,9 @@ def main() -> None:
     for name in ("copy", "zeros", "empty", "clone"):
         setattr(warp, name, timed(lambda a, k, n=name: f"wp.{n}", getattr(warp, name)))
     for name in ("zero_", "numpy", "assign"):
-        setattr(warp.array, name, timed(lambda a, k, n=name: f"array.{n}", getattr(warp.array, name)))
+        setattr(
+            warp.array, name, timed(lambda a, k, n=name: f"array.{n}", getattr(warp.array, name))
+        )
     chunked = SV.Solver._chunked
 
     def chunked_timed(self, fn):
@@ -97,7 +99,9 @@ def main() -> None:
 
     SV.Solver._chunked = chunked_timed
 
-    model, solver, x0 = B.build_scene(args.particles, args.grid, threads=args.threads, requires_grad=True)
+    model, solver, x0 = B.build_scene(
+        args.particles, args.grid, threads=args.threads, requires_grad=True
+    )
     start = model.state(x0, B.INITIAL_VELOCITY)
     ping = [model.state(x0, B.INITIAL_VELOCITY), model.state(x0, B.INITIAL_VELOCITY)]
     S, frames = args.substeps, args.frames
@@ -105,7 +109,9 @@ def main() -> None:
     rollout = Rollout(solver, S, S * B.DT)
     rng = np.random.default_rng(0)
     p = model.particle_count
-    adjoints = {f: {"x": rng.standard_normal((p, 3)).astype(np.float32)} for f in range(1, frames + 1)}
+    adjoints = {
+        f: {"x": rng.standard_normal((p, 3)).astype(np.float32)} for f in range(1, frames + 1)
+    }
 
     def forward():
         a, b = ping
@@ -124,7 +130,7 @@ def main() -> None:
     phases = (("forward", forward), ("recorded_fwd", recorded_forward), ("backward", backward))
     walls: dict = collections.defaultdict(list)
     cpus: dict = collections.defaultdict(list)
-    for name, fn in phases:  # warm-up: kernel loads, buffers
+    for _name, fn in phases:  # warm-up: kernel loads, buffers
         fn()
     for _ in range(args.repeats):
         for name, fn in phases:
@@ -148,7 +154,9 @@ def main() -> None:
             key=lambda t: -t[1],
         )
         for item, w, c, n in items:
-            print(f"  {item:36s} {w * ms:7.3f} wall {c * ms:7.3f} cpu ms/substep {n / steps:5.1f} calls")
+            print(
+                f"  {item:36s} {w * ms:7.3f} wall {c * ms:7.3f} cpu ms/substep {n / steps:5.1f} calls"
+            )
         untimed = float(np.mean(walls[name])) - sum(t[1] for t in items)
         print(f"  {'(python / untimed)':36s} {untimed * ms:7.3f} wall ms/substep")
 

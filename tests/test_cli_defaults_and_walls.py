@@ -281,9 +281,7 @@ def test_an_object_a_few_cells_across_is_told_it_is_not_resolved(
         assert not lines and "resolution" not in params["scene"], err
 
 
-@pytest.mark.parametrize(
-    "scale, z, grid", [(0.06, 0.3, 16), (0.1, 0.7, 20), (0.05, 0.5, 32)]
-)
+@pytest.mark.parametrize("scale, z, grid", [(0.06, 0.3, 16), (0.1, 0.7, 20), (0.05, 0.5, 32)])
 def test_a_small_object_high_above_the_floor_starts_clear_of_the_top_wall(
     tmp_path, capsys, scale, z, grid
 ):

@@ -35,7 +35,6 @@ from motionphysics.materials.catalog import (
     spec,
 )
 
-
 __all__ = [
     "BACKENDS",
     "MAX_PROMPT_CHARS",

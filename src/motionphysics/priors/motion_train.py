@@ -42,6 +42,7 @@ from torch import Tensor
 
 from motionphysics.errors import UserInputError
 from motionphysics.language.captions import GROUPS, TRAIN, caption_clip, group_prompt
+from motionphysics.language.text import sentence_embeddings
 from motionphysics.priors.motion import (
     MotionDenoiser,
     MotionPrior,
@@ -50,7 +51,6 @@ from motionphysics.priors.motion import (
     normalise,
 )
 from motionphysics.priors.motion_features import FEATURE_NAMES, MotionScene, clip_features
-from motionphysics.language.text import sentence_embeddings
 
 __all__ = [
     "VIEWS",

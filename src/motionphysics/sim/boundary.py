@@ -942,9 +942,7 @@ class BoundaryProgram:
         write every such node unchanged and give it the identity adjoint."""
         if op.kind == "bounding_box":
             first, last = op.scalars["first"], op.scalars["last"]
-            return any(
-                off[a] <= first[a] or off[a] + dims[a] - 1 >= last[a] for a in range(3)
-            )
+            return any(off[a] <= first[a] or off[a] + dims[a] - 1 >= last[a] for a in range(3))
         if op.kind in ("sticky", "slip", "frictional"):
             n = np.asarray(op.scalars["normal"], dtype=np.float64)
             q = np.asarray(op.scalars["point"], dtype=np.float64)
