@@ -225,11 +225,16 @@ def run_motion_iteration_bench(
     import torch
 
     from motionphysics.assembly import assemble
-    from motionphysics.losses.base import LossBuildContext, LossContext
+    from motionphysics.losses.base import LossContext
     from motionphysics.optimize.boosting import frames_for_iteration
     from motionphysics.optimize.fit import build_problem
     from motionphysics.optimize.loop import iteration_threads
-    from motionphysics.optimize.refine import _boost_for_prior, build_losses, scene_context
+    from motionphysics.optimize.refine import (
+        _boost_for_prior,
+        build_losses,
+        loss_build_context,
+        scene_context,
+    )
     from motionphysics.priors import load_prior
     from motionphysics.runconfig import load_run_config
     from motionphysics.runtime import check_device, set_threads
@@ -249,18 +254,7 @@ def run_motion_iteration_bench(
     prior = load_prior("motion", cfg.optimize.prior_path, device=dev)
     prior.set_prompt(cfg.prompt)
     prior.set_scene(scene_context(parts))
-    bctx = LossBuildContext(
-        prompt=cfg.prompt,
-        prior=prior,
-        num_frames=int(cfg.sim.frames),
-        frame_dt=float(cfg.sim.frame_dt),
-        out_dir=None,
-        device=dev,
-        seed=int(cfg.optimize.seed),
-        height=int(cfg.camera.height),
-        width=int(cfg.camera.width),
-        num_particles=parts.num_particles,
-    )
+    bctx = loss_build_context(cfg, parts, prior, None, dev)
     loss = build_losses(cfg, bctx)  # what run builds: the prior's loss defaults included
     problem = build_problem(parts, loss)
     opt_cfg, _ = _boost_for_prior(cfg, prior)  # run's boost, capped for the prior's frames

@@ -235,6 +235,23 @@ class WeightedLoss(Loss):
             lo.load_state_dict(st)
 
 
+def loss_build_context(cfg, parts, prior, out_dir, device) -> LossBuildContext:
+    """What the losses of ``cfg`` are built with: the prompt, ``prior``, the run's frames,
+    camera size, seed and particle count (``run`` and ``bench iteration`` alike)."""
+    return LossBuildContext(
+        prompt=cfg.prompt,
+        prior=prior,
+        num_frames=int(cfg.sim.frames),
+        frame_dt=float(cfg.sim.frame_dt),
+        out_dir=out_dir,
+        device=device,
+        seed=int(cfg.optimize.seed),
+        height=int(cfg.camera.height),
+        width=int(cfg.camera.width),
+        num_particles=parts.num_particles,
+    )
+
+
 def build_losses(cfg, ctx: LossBuildContext) -> WeightedLoss:
     """Every entry of ``optimize.losses`` (or ``optimize.loss``) built through the registry."""
     from motionphysics.losses import LOSSES
@@ -409,18 +426,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         prior.set_prompt(cfg.prompt)
         if getattr(prior, "observes", "frames") == "states":
             prior.set_scene(scene_context(parts))
-    bctx = LossBuildContext(
-        prompt=cfg.prompt,
-        prior=prior,
-        num_frames=int(cfg.sim.frames),
-        frame_dt=float(cfg.sim.frame_dt),
-        out_dir=writer.path,
-        device=parts.device,
-        seed=int(cfg.optimize.seed),
-        height=int(cfg.camera.height),
-        width=int(cfg.camera.width),
-        num_particles=parts.num_particles,
-    )
+    bctx = loss_build_context(cfg, parts, prior, writer.path, parts.device)
     several = parts.objects is not None
     phrases = None
     if several:
