@@ -172,6 +172,13 @@ def main() -> None:
         default=None,
         help="longest side of every object [m] (default: scale 0.3)",
     )
+    ap.add_argument(
+        "--loss-options",
+        type=json.loads,
+        default=None,
+        help='options of the lmd loss (JSON), e.g. \'{"negative_prompt": ""}\': the refined '
+        "runs set optimize.losses to [{type: lmd, ...}] instead of passing --loss lmd",
+    )
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
         "--reuse", action="store_true", help="keep complete runs of the same config in --out"
@@ -193,7 +200,11 @@ def main() -> None:
                 for seed in range(args.seeds):
                     c = json.loads(json.dumps(cfg))
                     c["optimize"] = {"seed": seed}
-                    extra = ["--prior", "motion", "--loss", "lmd", "--iters", str(args.iters)]
+                    extra = ["--prior", "motion", "--iters", str(args.iters)]
+                    if args.loss_options is None:
+                        extra[2:2] = ["--loss", "lmd"]
+                    else:
+                        c["optimize"]["losses"] = [{"type": "lmd", **args.loss_options}]
                     jobs.append(((sname, g, seed), c, out / f"{tag}-s{seed}", extra))
         with ThreadPoolExecutor(args.workers) as pool:
             futs = {
