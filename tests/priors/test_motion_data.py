@@ -7,14 +7,20 @@ import numpy as np
 import pytest
 
 from motionphysics.language.captions import GROUPS
+from motionphysics.materials.catalog import MATERIALS
 from motionphysics.priors.motion_data import (
     KEEP_PARTICLES,
+    MAX_ATTEMPTS,
+    MAX_ATTEMPTS_OF,
     TARGETS,
     TRAIN_SHAPES,
     clip_measures,
     draw_motion_spec,
     make_clip,
 )
+
+G0 = 9.8
+RANGE = {(c, p.name): (float(p.low), float(p.high)) for c in MATERIALS for p in MATERIALS[c].params}
 
 
 def test_draws_are_deterministic_and_cover_the_setups():
@@ -83,3 +89,28 @@ def test_generation_keeps_shards_already_written_and_refuses_another_seed(tmp_pa
     with pytest.raises(UserInputError, match="seed is 11 there but 12 was asked"):
         generate(out, SHARD_SIZE, seed=12)
     assert json.loads((out / "dataset.json").read_text())["seed"] == 11
+
+
+def test_wobble_and_ooze_draws_scale_with_the_object():
+    """A wobble needs a static sag of a few per cent (E / (rho g L) in 3..20) and an ooze a
+    slump time of about the clip (mu / (rho g L) in 1..40 s) whatever the object's size:
+    the proposals draw the ratio, switch gravity on and set the object down."""
+    wob = [draw_motion_spec(0, 2 + 9 * k, a) for k in range(30) for a in range(2)]
+    assert {s.target for s in wob} == {"wobbles"}
+    for s in wob:
+        assert s.gravity == G0 and -0.2 - 1e-9 <= s.velocity[2] / (G0 * s.scale) ** 0.5 <= 0.0
+        if "E" in s.params and s.params["E"] > RANGE[s.cls, "E"][0]:  # else at the class's floor
+            assert 3.0 <= s.params["E"] / (s.density * G0 * s.scale) <= 20.0
+        if s.cls == "elastic":
+            assert 0.45 <= s.params["nu"] <= 0.49
+    sizes = [s.scale for s in wob]
+    assert max(sizes) / min(sizes) > 3  # a range of sizes, each with its own E
+    ooze = [draw_motion_spec(0, 4 + 9 * k, a) for k in range(30) for a in range(2)]
+    for s in ooze:
+        assert s.gravity == G0 and 0.08 <= s.scale <= 0.6
+        lo, hi = RANGE[s.cls, "mu"]
+        if lo < s.params["mu"] < hi:
+            assert 1.0 <= s.params["mu"] / (s.density * G0 * s.scale) <= 40.0
+        if s.cls == "non_newtonian":
+            assert s.params["tau_Y"] <= 50.0
+    assert MAX_ATTEMPTS_OF["wobbles"] > MAX_ATTEMPTS and MAX_ATTEMPTS_OF["oozes"] > MAX_ATTEMPTS

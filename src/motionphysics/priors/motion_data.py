@@ -22,7 +22,8 @@ catalogue says ``log``). The clip's duration is drawn too (frame spacing 0.03-0.
 
 Balance: clip ``i`` has a target motion group (``i`` mod 9: the 8 groups of
 :mod:`.captions` and "no group"); its setup is drawn from a proposal for that group (the
-classes that can show it) and re-drawn, up to :data:`MAX_ATTEMPTS` times, until the
+classes that can show it) and re-drawn, up to :data:`MAX_ATTEMPTS` times (more for the
+rarest groups, :data:`MAX_ATTEMPTS_OF`), until the
 measured group is the target (rejection sampling). The last attempt is kept when none
 hits, so a data set holds every clip index, with its measured group.
 
@@ -53,6 +54,7 @@ __all__ = [
     "HELD_OUT_SHAPES",
     "KEEP_PARTICLES",
     "MAX_ATTEMPTS",
+    "MAX_ATTEMPTS_OF",
     "TRAIN_SHAPES",
     "MotionSpec",
     "clip_measures",
@@ -117,16 +119,38 @@ TARGETS: tuple[str | None, ...] = (*GROUPS, None)
 _SETUP: dict[str | None, dict[str, tuple[float, float]]] = {
     "bounces_high": {"drop": (1.0, 5.0), "E": (1e5, 1e8)},
     "barely_bounces": {"drop": (0.3, 3.0), "E": (1e6, 1e9)},
-    "wobbles": {"drop": (0.2, 2.0), "E": (2e3, 5e4), "scale": (0.1, 1.0)},
+    "wobbles": {"drop": (0.05, 0.5), "E_rel": (3.0, 20.0), "nu": (0.45, 0.49), "vz": (-0.2, 0.0)},
     "splashes": {"drop": (0.5, 4.0)},
-    "oozes": {"drop": (0.05, 1.0), "scale": (0.01, 0.15), "mu": (10.0, 1e5)},
+    "oozes": {
+        "drop": (0.02, 0.3),
+        "scale": (0.08, 0.6),
+        "mu_rel": (1.0, 40.0),
+        "tau_Y": (1.0, 50.0),
+        "vz": (-0.2, 0.0),
+    },
     "keeps_shape": {"drop": (0.05, 1.0)},
     "crumbles": {"drop": (0.05, 2.0)},
     "squashes_flat": {"drop": (0.1, 1.5), "tau_Y": (3e3, 1e5)},
 }
 """Per target group, narrower draws of the drop height (over the object size), the size
-[m] and some parameters (intersected with the class's range): the proposal's shift toward
-setups that can show the motion. The caption is still what the simulated motion shows."""
+[m] and some parameters (intersected with the class's range; a linear parameter such as
+``nu`` is drawn uniformly in the given interval): the proposal's shift toward setups that
+can show the motion. The caption is still what the simulated motion shows.
+
+Two draws are relative to the object, because the motion depends on the ratio, not on
+the value: ``E_rel`` draws E as a multiple of rho g L (its inverse is the strain of the
+static sag under the object's own weight: a wobble needs a sag of a few per cent, soft
+enough to swing at impact and stiff enough to come back; a fixed E range makes a 1 m
+jelly sag flat and a 1 cm one rigid), ``mu_rel`` draws the viscosity as rho g L times a
+slump time in seconds (an ooze is a flow still creeping at the clip's end, 0.45-1.2 s).
+Both switch gravity on (the motions are gravity's). ``vz`` is the initial vertical
+velocity over the Froude velocity sqrt(g L) (a wobble or an ooze is set down, not thrown
+up)."""
+
+MAX_ATTEMPTS_OF: dict[str | None, int] = {"wobbles": 6, "oozes": 6}
+"""More attempts for the rarest groups (a soft solid that swings without bouncing off,
+and a flow still creeping at the end, hit their target in about 1 draw of 6, the others
+in about 1 of 2): rejection sampling toward a balanced data set."""
 
 
 @dataclass(frozen=True)
@@ -192,11 +216,12 @@ def draw_motion_spec(
     setup = _SETUP.get(target, {})
     params = {}
     for ps in MATERIALS[cls].params:
-        if ps.name in setup and ps.scale == "log":
+        if ps.name in setup:
             lo_p = max(float(ps.low), setup[ps.name][0])
             hi_p = min(float(ps.high), setup[ps.name][1])
             if lo_p < hi_p:
-                params[ps.name] = _logu(rng, lo_p, hi_p)
+                log = ps.scale == "log"
+                params[ps.name] = _logu(rng, lo_p, hi_p) if log else float(rng.uniform(lo_p, hi_p))
                 continue
         params[ps.name] = _draw_param(rng, ps)
     lo, hi = _DENSITY[cls]
@@ -226,6 +251,13 @@ def draw_motion_spec(
     if rng.random() < 0.7:
         rotate.append(("z", float(rng.uniform(0, 360))))
     gravity = G0 if rng.random() < 0.88 else 0.0
+    spec_of = {ps.name: ps for ps in MATERIALS[cls].params}
+    for key, name in (("E_rel", "E"), ("mu_rel", "mu")):
+        if key in setup and name in params:  # relative to rho g L, inside the class's range
+            value = _logu(rng, *setup[key]) * density * G0 * scale
+            ps = spec_of[name]
+            params[name] = float(min(max(value, float(ps.low)), float(ps.high)))
+            gravity = G0
     vref = math.sqrt(G0 * scale)  # Froude velocity scale of the object
     drop = min(0.6, scale * _logu(rng, *setup.get("drop", (0.05, 3.0))))
     vel = [float(rng.normal(0, 0.4 * vref)), float(rng.normal(0, 0.4 * vref))]
@@ -233,6 +265,8 @@ def draw_motion_spec(
         vel.append(float(rng.uniform(-1.5, 0.5) * vref))
     else:  # thrown at the floor: without gravity nothing else would reach it
         vel.append(-float(rng.uniform(0.8, 3.0) * vref))
+    if "vz" in setup and gravity > 0:
+        vel[2] = float(rng.uniform(*setup["vz"]) * vref)
     frame_dt = _logu(rng, 0.03, 0.08)
     impulse = None
     if rng.random() < 0.2:
@@ -466,7 +500,8 @@ def make_clip(seed: int, index: int, shapes: tuple[str, ...] = TRAIN_SHAPES) -> 
     attempt failed to simulate."""
     last: dict[str, Any] | None = None
     failures = []
-    for a in range(MAX_ATTEMPTS):
+    target = TARGETS[int(index) % len(TARGETS)]
+    for a in range(MAX_ATTEMPTS_OF.get(target, MAX_ATTEMPTS)):
         spec = draw_motion_spec(seed, index, a, shapes)
         try:
             traj = simulate_clip(spec)
@@ -577,7 +612,10 @@ def generate(
         "frames": CLIP_FRAMES,
         "particles": KEEP_PARTICLES,
         "shard_size": SHARD_SIZE,
-        "max_attempts": MAX_ATTEMPTS,
+        "max_attempts": {
+            "default": MAX_ATTEMPTS,
+            **{str(k): v for k, v in MAX_ATTEMPTS_OF.items()},
+        },
     }
     return run_shards(
         out,
