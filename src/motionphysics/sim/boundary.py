@@ -240,14 +240,59 @@ def _launch(
         device=device,
         record_tape=False,
     )
-    done = []
+    record = _LaunchAdjoint(
+        tape, kernel, dim, inputs, targets, extra_outputs, device, grid_offset, saved
+    )
+    tracked = [a for a in (*inputs, *targets) if isinstance(a, wp.array) and a.grad is not None]
+    tape.record_func(backward=record, arrays=tracked)
 
-    def backward():
-        if done:
+
+class _LaunchAdjoint:
+    """The recorded adjoint of one :func:`_launch` under a tape (one object with slots
+    rather than a closure: a rollout keeps thousands of these alive until its backward,
+    and every object Python's garbage collector tracks costs collection time)."""
+
+    __slots__ = (
+        "tape",
+        "kernel",
+        "dim",
+        "inputs",
+        "targets",
+        "extra_outputs",
+        "device",
+        "grid_offset",
+        "saved",
+        "done",
+    )
+
+    def __init__(
+        self, tape, kernel, dim, inputs, targets, extra_outputs, device, grid_offset, saved
+    ):
+        self.tape = tape
+        self.kernel = kernel
+        self.dim = dim
+        self.inputs = inputs
+        self.targets = targets
+        self.extra_outputs = extra_outputs
+        self.device = device
+        self.grid_offset = grid_offset
+        self.saved = saved
+        self.done = False
+
+    def __call__(self) -> None:
+        if self.done:
             raise RuntimeError(
                 "a recorded boundary launch was back-propagated twice; record the step again"
             )
-        done.append(True)
+        self.done = True
+        wp = init_warp()
+        tape, dim, grid_offset = self.tape, self.dim, self.grid_offset
+        inputs, targets, extra_outputs, saved = (
+            self.inputs,
+            self.targets,
+            self.extra_outputs,
+            self.saved,
+        )
         # In place: each thread reads and writes only its own element, so the sources'
         # adjoint can be the targets' .grad itself (on the launch domain: a view with the
         # saved source's indexing). In the reverse pass a thread first reads the incoming
@@ -271,21 +316,18 @@ def _launch(
         adj_inputs = [tape.get_adjoint(a) if isinstance(a, wp.array) else None for a in inputs]
         adj_extra = [tape.get_adjoint(a) for a in extra_outputs]
         wp.launch(
-            kernel,
+            self.kernel,
             dim=dim,
             inputs=[*inputs, *saved],
             outputs=[*targets, *extra_outputs],
             adj_inputs=[*adj_inputs, *adj_saved],
             adj_outputs=[*adj_targets, *adj_extra],
-            device=device,
+            device=self.device,
             adjoint=True,
             record_tape=False,
         )
         for buf in saved:
             _POOL.give(buf)
-
-    tracked = [a for a in (*inputs, *targets) if isinstance(a, wp.array) and a.grad is not None]
-    tape.record_func(backward=backward, arrays=tracked)
 
 
 @dataclass(frozen=True)
