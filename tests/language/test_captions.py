@@ -159,11 +159,9 @@ def test_caption_uses_only_its_groups_phrases(held_out):
             "bounces_high",
             "A stiff ring squashes and stays flat",
         ),
-        (
-            "A soft rubber duck is dropped, squashes and wobbles",
-            "wobbles",
-            "A soft rubber duck bounces high",
-        ),
+        # a wobble sits between "too stiff" and "too soft": the unconditional prompt
+        ("A soft rubber duck is dropped, squashes and wobbles", "wobbles", ""),
+        ("a ring shakes and jiggles like gelatin", "wobbles", ""),
         ("Thick honey oozes slowly over the floor", "oozes", "Thick honey splashes and spreads"),
         ("Thin runny water splashes and spreads thin", "splashes", "Thin runny water oozes slowly"),
         ("A sand castle crumbles into a heap", "crumbles", "A sand castle keeps its shape"),
@@ -180,7 +178,7 @@ def test_contrast_prompt_is_the_opposite_motion_with_the_same_subject(prompt, gr
     neg = contrast_prompt(prompt)
     if negative is not None:
         assert neg == negative
-    if group is not None:
+    if group is not None and OPPOSITE[group] is not None:
         assert neg.endswith(TRAIN[OPPOSITE[group]][0])
         assert prompt_motion_group(neg)[0] == OPPOSITE[group]  # the contrast is a claim too
 
@@ -188,7 +186,8 @@ def test_contrast_prompt_is_the_opposite_motion_with_the_same_subject(prompt, gr
 def test_opposites_pair_up_the_groups():
     from motionphysics.language.captions import OPPOSITE
 
-    assert set(OPPOSITE) == set(GROUPS) and set(OPPOSITE.values()) <= set(GROUPS)
+    assert set(OPPOSITE) == set(GROUPS) and set(OPPOSITE.values()) <= {*GROUPS, None}
     assert all(OPPOSITE[g] != g for g in GROUPS)
+    assert OPPOSITE["wobbles"] is None
     for a, b in (("bounces_high", "squashes_flat"), ("splashes", "oozes")):
         assert OPPOSITE[a] == b and OPPOSITE[b] == a

@@ -64,7 +64,8 @@ class SdsLoss(Loss):
         """The prompt the guidance is taken against: ``""`` (unconditional, the paper), a
         contrasting description (e.g. "a soft blob squashes flat" against "a stiff ball
         bounces high"), or ``auto``: the opposite motion with the prompt's subject
-        (``language.captions.contrast_prompt``; ``""`` when the prompt claims no motion).
+        (``language.captions.contrast_prompt``; ``""`` when the prompt claims no motion, or
+        a wobble, which has no one opposite: too stiff and too soft both fail it).
         With ``form: classifier_score`` a contrasting prompt makes the loss the pairwise
         contrast ``ε̂(prompt) − ε̂(negative)``: the motion prior's default
         (``MotionPrior.loss_defaults``), and the form under which the removed pixel prior

@@ -165,7 +165,7 @@ class MotionPrior(VideoPrior):
     }
     """Options the losses take with this prior unless the config sets them: the pairwise
     contrast (the guided difference between the prompt and the opposite motion with the
-    prompt's subject, ``negative_prompt: auto``) at g = 5, averaged over 8 diffusion
+    prompt's subject, ``negative_prompt: auto``; the unconditional prompt for a wobble) at g = 5, averaged over 8 diffusion
     draws (a draw costs a forward of a 0.35M-parameter network, nothing next to the
     simulation). The geometry perturbation of the observed positions is 2 % of the
     object size (the paper's 10 % is for pixels; per-particle offsets of 10 % of the size
