@@ -59,6 +59,7 @@ from motionphysics.config import (
 )
 from motionphysics.errors import UserInputError
 from motionphysics.runtime import init_warp
+from motionphysics.sim.state import copy_array
 
 __all__ = ["BoundaryParam", "BoundaryProgram", "particle_bounds"]
 
@@ -226,7 +227,7 @@ def _launch(
     for a in targets:
         if grid_offset is None:
             buf = _POOL.take(a.shape, a.dtype, a.device)
-            wp.copy(buf, a)
+            copy_array(buf, a)
         else:
             buf = _POOL.take(dim, a.dtype, a.device)
             _region_copy(a, buf, dim, grid_offset, zero, device)

@@ -429,14 +429,20 @@ def _stress_elastic_p2g(
     p_offset: int,
     chunk: int,
     off: wp.vec3i,
+    store: int,
     F_out: wp.array(dtype=wp.mat33),
     ep_out: wp.array(dtype=float),
     grid_mv: wp.array4d(dtype=wp.vec4),
+    affine_out: wp.array(dtype=wp.mat33),
+    R_out: wp.array(dtype=wp.mat33),
 ):
-    # The untaped forward of a scene whose particles are all elastic and of one object:
-    # _stress_elastic and _p2g in one pass over the particles (the same expressions, so
-    # the same results): the affine matrix stays in registers instead of a round trip
-    # through memory, the particle's mass terms are read once, one launch instead of two.
+    # A scene whose particles are all elastic and of one object: _stress_elastic and _p2g
+    # in one pass over the particles (the same expressions, so the same results): the
+    # affine matrix stays in registers instead of a round trip through memory, the
+    # particle's mass terms are read once, one launch instead of two. With store != 0 (a
+    # recorded substep) the affine matrix and the polar rotation R also go to affine_out
+    # and R_out, what the hand-written adjoints _p2g_adjoint and _stress_elastic_adjoint
+    # read (as _stress_elastic with store_R writes them); store = 0 writes neither.
     p = wp.tid() + p_offset
     inv_dx = 1.0 / dx
     Cp = C[p]
@@ -449,6 +455,9 @@ def _stress_elastic_p2g(
     vol = volume[p] * active[p]
     rho = density[p]
     A = (-dt * vol * 4.0 * inv_dx * inv_dx) * tau + (rho * vol) * Cp
+    if store != 0:
+        R_out[p] = R
+        affine_out[p] = A
     # P2G as in _p2g (m = density * volume * active)
     m = rho * volume[p] * active[p]
     mv = m * v[p]

@@ -38,7 +38,7 @@ import numpy as np
 from motionphysics.runtime import init_warp
 from motionphysics.sim import kernels as _k
 from motionphysics.sim.model import Model
-from motionphysics.sim.state import State
+from motionphysics.sim.state import State, copy_array
 
 DEFAULT_CFL = 0.4
 
@@ -76,9 +76,10 @@ class SolverConfig:
     active_region: bool = True
     """CPU only: zero and update only the grid nodes around the particles' bounding box."""
     fuse_elastic_p2g: bool = True
-    """Untaped substeps of a one-object, all-elastic scene run the stress and P2G as one
-    kernel (``kernels._stress_elastic_p2g``, same results); False: two launches, as
-    under a tape (for comparisons)."""
+    """Substeps of a one-object, all-elastic scene run the stress and P2G as one kernel
+    (``kernels._stress_elastic_p2g``, same results); recorded ones too (it then also stores
+    the affine matrices and rotations, and records the two kernels' hand-written
+    adjoints). False: two launches (for comparisons)."""
 
 
 @dataclass
@@ -464,13 +465,25 @@ class Solver:
         def stress_inputs(chunk: int, start: int) -> list:
             return self._stress_args(state_in, dt, start)
 
-        if (
+        tape = _active_tape()
+        fused = (
             self.config.fuse_elastic_p2g
-            and _active_tape() is None
             and self.classes == (_k.ELASTIC_CLASS,)
             and self.num_objects == 1
-        ):
-            # untaped, all elastic, one object: stress and P2G fused in one pass
+        )
+        if fused and tape is not None:
+            # recorded: with the hand-written P2G adjoint only (every adjoint buffer present)
+            needed = [state_in.x, state_in.v, affine, pr["density"], mv]
+            fused = all(a.grad is not None for a in needed)
+        if fused:
+            # all elastic, one object: stress and P2G fused in one pass; under a tape it
+            # also stores the affine matrices and rotations the two adjoints read
+            if tape is None:
+                if self._R_dummy is None:
+                    self._R_dummy = wp.empty(1, dtype=wp.mat33, device=m.device)
+                R, store = self._R_dummy, 0
+            else:
+                R, store = self._rotation(grid), 1
             self._chunked(
                 lambda c, start, n: wp.launch(
                     _k._stress_elastic_p2g,
@@ -493,14 +506,17 @@ class Solver:
                         start,
                         c,
                         wp_off,
+                        store,
                     ],
-                    outputs=[state_out.F, state_out.ep, mv],
+                    outputs=[state_out.F, state_out.ep, mv, affine, R],
                     device=m.device,
+                    record_tape=False,
                 )
             )
-            fused = True
-        else:
-            fused = False
+            if tape is not None:
+                # recorded in the order of the two launches it replaces
+                self._record_elastic_stress(tape, state_in, state_out, affine, R, dt)
+                self._record_p2g(tape, state_in, affine, mv, wp_off)
         # chunks write disjoint particles and their own private grid: no shared adjoints
         for cid in () if fused else self.classes:
             if cid == _k.ELASTIC_CLASS:
@@ -593,9 +609,7 @@ class Solver:
                 )
             )
             return
-        R = grid.rotation
-        if R is None or R.shape[0] != m.particle_count:
-            R = grid.rotation = wp.empty(m.particle_count, dtype=wp.mat33, device=dev)
+        R = self._rotation(grid)
         self._chunked(
             lambda c, start, n: wp.launch(
                 _k._stress_elastic,
@@ -606,6 +620,22 @@ class Solver:
                 record_tape=False,
             )
         )
+        self._record_elastic_stress(tape, state_in, state_out, affine, R, dt)
+
+    def _rotation(self, grid: Grid):
+        """``grid.rotation``: where a recorded substep stores its elastic rotations."""
+        p = self.model.particle_count
+        R = grid.rotation
+        if R is None or R.shape[0] != p:
+            R = grid.rotation = self.wp.empty(p, dtype=self.wp.mat33, device=self.model.device)
+        return R
+
+    def _record_elastic_stress(
+        self, tape, state_in: State, state_out: State, affine, R, dt: float
+    ) -> None:
+        """Record the elastic stress's adjoint (``_elastic_stress_backward``) on ``tape``."""
+        wp = self.wp
+        outputs = [state_out.F, state_out.ep, affine]
         arrays = [*self._elastic_args(state_in, dt, 0), *outputs]
         tape.record_func(
             backward=_Call(
@@ -678,10 +708,15 @@ class Solver:
             )
         )
         if custom:
-            tape.record_func(
-                backward=_Call((Solver._p2g_backward, self, state_in, affine, mv, wp_off)),
-                arrays=needed,
-            )
+            self._record_p2g(tape, state_in, affine, mv, wp_off)
+
+    def _record_p2g(self, tape, state_in: State, affine, mv, wp_off) -> None:
+        """Record P2G's hand-written adjoint (``_p2g_backward``) on ``tape``."""
+        density = self.model.params["density"]
+        tape.record_func(
+            backward=_Call((Solver._p2g_backward, self, state_in, affine, mv, wp_off)),
+            arrays=[state_in.x, state_in.v, affine, density, mv],
+        )
 
     def _p2g_backward(self, state_in: State, affine, mv, wp_off) -> None:
         wp = self.wp
@@ -743,7 +778,7 @@ class Solver:
         v_g2p = grid.v_g2p
         if v_g2p is None or v_g2p.shape[0] != m.particle_count:
             v_g2p = grid.v_g2p = wp.empty(m.particle_count, dtype=wp.vec3, device=dev)
-        wp.copy(v_g2p, state_out.v)  # before the post-G2P hooks edit state_out.v
+        copy_array(v_g2p, state_out.v)  # before the post-G2P hooks edit state_out.v
         shape = tuple(grid.mv.shape[1:]) if grid.mv is not None else tuple(m.grid_dims)
         tape.record_func(
             backward=_Call(

@@ -7,6 +7,7 @@ A :class:`State` holds per-particle arrays only; the solver ping-pongs two of th
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,10 +100,9 @@ class State:
 
     def assign(self, other: State) -> None:
         """Copy the values of ``other`` into this state (not recorded on a tape)."""
-        wp = init_warp()
         for f in self.FIELDS:
-            wp.copy(getattr(self, f), getattr(other, f))
-        wp.copy(self.active, other.active)
+            copy_array(getattr(self, f), getattr(other, f))
+        copy_array(self.active, other.active)
 
     def zero_grad(self) -> None:
         for f in self.FIELDS:
@@ -113,3 +113,24 @@ class State:
     def numpy(self) -> dict[str, np.ndarray]:
         """Host copies: x, v (P, 3), C, F (P, 3, 3), ep, active (P,), float32."""
         return {f: getattr(self, f).numpy().copy() for f in (*self.FIELDS, "active")}
+
+
+def copy_array(dst, src) -> None:
+    """``wp.copy(dst, src)``, by one ``memmove`` where that is all it would do: same-sized
+    contiguous CPU arrays of one element size, not both with gradients (``wp.copy`` then
+    also copies, and under a tape records, the gradients). ``wp.copy``'s checks cost ~8 us
+    a call, several times the copy of a 1,500-particle field; a recorded substep makes 3."""
+    wp = init_warp()
+    if (
+        (dst.grad is None or src.grad is None)
+        and dst.size == src.size
+        and dst.device.is_cpu
+        and src.device.is_cpu
+        and dst.is_contiguous
+        and src.is_contiguous
+    ):
+        size = wp.types.type_size_in_bytes(src.dtype)
+        if size == wp.types.type_size_in_bytes(dst.dtype):
+            ctypes.memmove(dst.ptr, src.ptr, size * src.size)
+            return
+    wp.copy(dst, src)
