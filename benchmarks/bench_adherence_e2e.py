@@ -179,6 +179,9 @@ def main() -> None:
         help='options of the lmd loss (JSON), e.g. \'{"negative_prompt": ""}\': the refined '
         "runs set optimize.losses to [{type: lmd, ...}] instead of passing --loss lmd",
     )
+    ap.add_argument(
+        "--prior-path", default=None, help="motion prior weights (default: the shipped ones)"
+    )
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
         "--reuse", action="store_true", help="keep complete runs of the same config in --out"
@@ -201,6 +204,8 @@ def main() -> None:
                     c = json.loads(json.dumps(cfg))
                     c["optimize"] = {"seed": seed}
                     extra = ["--prior", "motion", "--iters", str(args.iters)]
+                    if args.prior_path:
+                        extra += ["--prior-path", str(Path(args.prior_path).resolve())]
                     if args.loss_options is None:
                         extra[2:2] = ["--loss", "lmd"]
                     else:
