@@ -9,6 +9,7 @@ import numpy as np
 from test_solver import ELASTIC, _cfg, _hooked_sim, _scene
 
 from motionphysics.sim.build import build_simulation
+from motionphysics.sim.solver import Solver
 from motionphysics.sim.state import State
 
 
@@ -107,3 +108,64 @@ def test_recorded_fused_stress_and_p2g_give_the_two_kernels_gradients():
     assert np.any(g0["E"] != 0)
     for k in g0:
         np.testing.assert_array_equal(g1[k], g0[k], err_msg=k)
+
+
+def test_a_grid_recorded_again_on_a_clean_region_is_not_zeroed_again(monkeypatch):
+    """A complete backward leaves each recorded grid's node velocity adjoint zero on its
+    region (``Grid.clean``): the next recording of the same substeps (an iteration with
+    the same regions) skips zeroing it, with the same gradients; a grid whose backward did
+    not run to its end is zeroed again."""
+    import warp
+
+    from motionphysics.sim import kernels as K
+
+    sim = _elastic_sim()
+    ro = sim.rollout
+    ro.tape_memory = 1 << 34
+    p = sim.model.particle_count
+    rng = np.random.default_rng(2)
+    adj = {f: {"x": rng.normal(size=(p, 3)), "F": rng.normal(size=(p, 3, 3))} for f in (1, 3)}
+    zeroes = []
+    launch = warp.launch
+
+    def counted(kernel, *a, **k):
+        if kernel is K._zero_region_vec3:
+            zeroes.append(1)
+        return launch(kernel, *a, **k)
+
+    monkeypatch.setattr(warp, "launch", counted)
+
+    def iteration():
+        zeroes.clear()
+        ro.forward(sim.state0, 4, record_tapes=True, check=False)
+        n = len(zeroes)
+        sim.model.zero_grad()
+        ro.backward(adj)
+        return n, {k: a.grad.numpy().copy() for k, a in sim.model.params.items()}
+
+    n1, g1 = iteration()
+    n2, g2 = iteration()
+    assert n1 >= 3 * ro.substeps  # fresh grids: every recorded substep zeroes its region
+    assert n2 == 0  # same regions, each left clean by the complete backward
+    for k in g1:
+        np.testing.assert_array_equal(g2[k], g1[k], err_msg=k)
+    # a recording whose backward stopped part-way: its grids are zeroed again
+    ro.forward(sim.state0, 4, record_tapes=True, check=False)
+    tape, states, bufs = ro._kept[3]
+    bufs["dirty"] = len(states)  # as Rollout._backward_span_taped marks a span it starts
+    states[-1].x.grad.assign(rng.normal(size=(p, 3)).astype(np.float32))
+    # the later substeps' part, from a G2P adjoint on: its substep's grid update adjoint,
+    # which would consume the node velocity adjoint G2P's scattered, does not run
+    g2p = [
+        i
+        for i, r in enumerate(tape.launches)
+        if isinstance(r, tuple) and r[0] is Solver._g2p_backward
+    ]
+    tape.launches = tape.launches[g2p[len(g2p) // 2] :]
+    tape.backward()
+    tape.launches = []
+    assert any(g.clean is None for g in bufs["tgrids"])
+    n3, g3 = iteration()
+    assert n3 > 0
+    for k in g1:
+        np.testing.assert_array_equal(g3[k], g1[k], err_msg=k)

@@ -111,6 +111,20 @@ class Grid:
     """Recorded substeps only: the particle velocities G2P gathered [m/s] (P,) vec3, before
     the post-G2P hooks edit ``state_out.v``; read by G2P's adjoint instead of re-gathering."""
     num_objects: int = 1
+    clean: tuple | None = None
+    """Recorded substeps: ``(offset, shape)`` of a box of nodes on which ``velocity.grad`` is
+    known to be zero (None: nothing known). A recorded step zeroes the adjoint on its
+    region unless the region lies in this box; G2P's adjoint (which scatters into it)
+    clears it, and the grid update's adjoint, which consumes (zeroes) the whole region
+    last in the substep's backward, sets it to the region."""
+
+    def clean_on(self, offset, shape) -> bool:
+        """Whether ``velocity.grad`` is known to be zero on the box (``offset``, ``shape``)."""
+        box = self.clean
+        if box is None:
+            return False
+        o, n = box
+        return all(o[a] <= offset[a] and offset[a] + shape[a] <= o[a] + n[a] for a in range(3))
 
     @property
     def fields(self) -> list:
@@ -125,6 +139,7 @@ class Grid:
         the last recorded substep (G2P's adjoint scatters to the particles' stencils, the
         grid hooks and the grid update work on the region), so only that box is zeroed."""
         g = self.velocity.grad
+        self.clean = None
         if g is not None:
             if self.mv is None or self.num_objects > 1:
                 g.zero_()
@@ -352,6 +367,9 @@ class Solver:
             device=self.model.device,
             record_tape=False,
         )
+        # it consumed (zeroed) the node velocity adjoint on the region, the last in the
+        # substep's backward to touch it
+        grid.clean = (tuple(int(wp_off[a]) for a in range(3)), tuple(shape))
 
     def _region_grid(self, grid: Grid, shape: tuple[int, int, int], zero_grad: bool = True):
         """A zeroed (chunks, *shape) vec4 array for ``grid`` (reused when the shape allows);
@@ -448,15 +466,21 @@ class Solver:
         hand_grid = self.num_objects == 1 and grid.requires_grad and _active_tape() is not None
         grid.mv = mv = self._region_grid(grid, shape, zero_grad=not hand_grid)
         if hand_grid:
-            # G2P's adjoint accumulates into the node velocity adjoint on this region only
-            wp.launch(
-                _k._zero_region_vec3,
-                dim=shape,
-                inputs=[wp_off],
-                outputs=[grid.velocity.grad],
-                device=m.device,
-                record_tape=False,
-            )
+            # G2P's adjoint accumulates into the node velocity adjoint on this region only.
+            # A complete backward of a substep leaves its region zero (Grid.clean), so a grid
+            # recorded again on the same region (the next iteration) is not zeroed again.
+            custom = self._g2p_custom(state_in, grid, state_out)
+            if not (custom and grid.clean_on(off, shape)):
+                wp.launch(
+                    _k._zero_region_vec3,
+                    dim=shape,
+                    inputs=[wp_off],
+                    outputs=[grid.velocity.grad],
+                    device=m.device,
+                    record_tape=False,
+                )
+                # (Warp's own G2P adjoint would not clear it: nothing is known then)
+                grid.clean = (off, shape) if custom else None
         grid.offset = off
         pr = m.params
 
@@ -761,7 +785,7 @@ class Solver:
         tape = _active_tape()
         outputs = [state_out.x, state_out.v, state_out.C]
         needed = [state_in.x, grid.velocity, *outputs]
-        custom = tape is not None and all(a.grad is not None for a in needed)
+        custom = tape is not None and self._g2p_custom(state_in, grid, state_out)
         # (with a tape but some arrays without gradients, Warp records its own adjoint)
         self._chunked(
             lambda c, start, n: wp.launch(
@@ -797,9 +821,19 @@ class Solver:
             arrays=needed,
         )
 
+    @staticmethod
+    def _g2p_custom(state_in: State, grid: Grid, state_out: State) -> bool:
+        """Whether a recorded G2P records its hand-written adjoint (every adjoint buffer
+        present; else Warp records its own)."""
+        return all(
+            a.grad is not None
+            for a in (state_in.x, grid.velocity, state_out.x, state_out.v, state_out.C)
+        )
+
     def _g2p_backward(
         self, state_in: State, grid: Grid, state_out: State, dt: float, v_g2p, offset, shape
     ) -> None:
+        grid.clean = None  # scatters into the node velocity adjoint
         # chunk 0 scatters straight into the grid's adjoint; chunk 1 (CPU threads) into a
         # region-sized private buffer (the particles' stencils lie in the region), reused,
         # then added at the offset: Warp's CPU atomics are plain read-modify-writes
