@@ -16,7 +16,12 @@ generated adjoints of the 27-node stencil loops cost 2-6x their forward. The ela
 (fixed corotated) stress runs ``kernels._stress_elastic`` (Newton polar rotation, 3-4x
 faster than the SVD) and, under a tape, stores the rotations for the SVD-free
 ``_stress_elastic_adjoint``; the other classes' stress kernels use Warp's generated adjoint
-(SVD included).
+(SVD included). A one-object, all-elastic scene runs the stress and P2G as one kernel
+(``kernels._stress_elastic_p2g``), recorded or not: recorded, it also stores the affine
+matrices and rotations, and the two hand-written adjoints are recorded as for the two
+kernels. A recorded substep keeps its adjoints' data in plain records (:class:`_Call`),
+not closures: they stay alive until the backward, and Python's garbage collector walks
+every object they hold.
 
 On CPU, Warp runs a launch on one thread; with ``SolverConfig.threads = 2`` the
 particles are split in two chunks, the first launched from the caller's thread and the
@@ -306,50 +311,57 @@ class Solver:
             )
         )
         per_chunk = [make_inputs(c, start) for c, (start, _n) in enumerate(self._ranges)]
-
-        def backward() -> None:
-            private: dict[tuple[int, int], Any] = {}
-
-            def adj(c: int, start: int, n: int) -> None:
-                ins = per_chunk[c]
-                adj_in = []
-                for i, a in enumerate(ins):
-                    g = tape.get_adjoint(a)
-                    if i in shared and g is not None:
-                        g = wp.zeros_like(g)
-                        private[(c, i)] = g
-                    adj_in.append(g)
-                adj_out = [tape.get_adjoint(o) for o in outputs]
-                wp.launch(
-                    kernel,
-                    dim=n,
-                    inputs=ins,
-                    outputs=outputs,
-                    adj_inputs=adj_in,
-                    adj_outputs=adj_out,
-                    device=dev,
-                    adjoint=True,
-                    record_tape=False,
-                )
-
-            self._chunked(adj)
-            for (_c, i), g in private.items():
-                total = per_chunk[0][i].grad
-                wp.launch(
-                    _k._add_vec3_3d,
-                    dim=total.shape,
-                    inputs=[g],
-                    outputs=[total],
-                    device=dev,
-                    record_tape=False,
-                )
-
         arrays = [
             a
             for a in (*[a for ins in per_chunk for a in ins], *outputs)
             if isinstance(a, wp.array) and a.grad is not None
         ]
-        tape.record_func(backward=backward, arrays=list({id(a): a for a in arrays}.values()))
+        tape.record_func(
+            backward=_Call(
+                (Solver._chunks_backward, self, tape, kernel, per_chunk, outputs, shared)
+            ),
+            arrays=list({id(a): a for a in arrays}.values()),
+        )
+
+    def _chunks_backward(self, tape, kernel, per_chunk, outputs: list, shared) -> None:
+        """The adjoint of :meth:`_launch_chunks`' two recorded chunk launches."""
+        wp = self.wp
+        dev = self.model.device
+        private: dict[tuple[int, int], Any] = {}
+
+        def adj(c: int, start: int, n: int) -> None:
+            ins = per_chunk[c]
+            adj_in = []
+            for i, a in enumerate(ins):
+                g = tape.get_adjoint(a)
+                if i in shared and g is not None:
+                    g = wp.zeros_like(g)
+                    private[(c, i)] = g
+                adj_in.append(g)
+            adj_out = [tape.get_adjoint(o) for o in outputs]
+            wp.launch(
+                kernel,
+                dim=n,
+                inputs=ins,
+                outputs=outputs,
+                adj_inputs=adj_in,
+                adj_outputs=adj_out,
+                device=dev,
+                adjoint=True,
+                record_tape=False,
+            )
+
+        self._chunked(adj)
+        for (_c, i), g in private.items():
+            total = per_chunk[0][i].grad
+            wp.launch(
+                _k._add_vec3_3d,
+                dim=total.shape,
+                inputs=[g],
+                outputs=[total],
+                device=dev,
+                record_tape=False,
+            )
 
     def _record_grid_update_adjoint(self, grid: Grid, mv, shape, wp_off) -> None:
         """Record ``kernels._grid_update_adjoint`` for the grid update just launched."""
