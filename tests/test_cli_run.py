@@ -94,22 +94,6 @@ def test_embedded_prior_refines_without_a_path(tmp_path):
     assert recs[0]["loss_samples"] == 8.0 and recs[0]["guidance"] == 5.0
 
 
-def test_a_wobble_prompt_is_contrasted_with_the_unconditional_prompt(tmp_path):
-    # A wobble has no one opposite (too stiff and too soft both fail it): `auto` takes the
-    # guidance against "" for it, and params.json says which prompt was used.
-    import yaml
-
-    data = yaml.safe_load(TINY.read_text())
-    data["prompt"] = "A jelly ball is dropped and jiggles like gelatin"
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump(data))
-    out = tmp_path / "o"
-    argv = ["run", str(cfg), "--prior", "motion", "--loss", "lmd", "--iters", "1"]
-    assert main([*argv, "--out", str(out), "--quiet"]) == 0
-    lo = json.loads((out / "params.json").read_text())["optimise"]["loss_options"]["lmd"]
-    assert (lo["negative_prompt"], lo["negative_prompt_used"]) == ("auto", "")
-
-
 def test_config_options_win_over_the_priors_loss_defaults(tmp_path):
     import yaml
 
