@@ -201,13 +201,19 @@ def _logu(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
 
+def _target(index: int) -> str | None:
+    """The motion group clip ``index`` is drawn toward (None: no group)."""
+    return TARGETS[int(index) % len(TARGETS)]
+
+
 def draw_motion_spec(
     seed: int, index: int, attempt: int = 0, shapes: tuple[str, ...] = TRAIN_SHAPES
 ) -> MotionSpec:
     """The random setup of attempt ``attempt`` of clip ``index`` (deterministic)."""
     from motionphysics.materials.catalog import MATERIALS
+    from motionphysics.materials.catalog import spec as param_spec
 
-    target = TARGETS[int(index) % len(TARGETS)]
+    target = _target(index)
     rng = np.random.default_rng([int(seed), int(index), int(attempt), 11])
     prop = _PROPOSAL[target]
     classes = sorted(prop)
@@ -251,11 +257,10 @@ def draw_motion_spec(
     if rng.random() < 0.7:
         rotate.append(("z", float(rng.uniform(0, 360))))
     gravity = G0 if rng.random() < 0.88 else 0.0
-    spec_of = {ps.name: ps for ps in MATERIALS[cls].params}
     for key, name in (("E_rel", "E"), ("mu_rel", "mu")):
         if key in setup and name in params:  # relative to rho g L, inside the class's range
             value = _logu(rng, *setup[key]) * density * G0 * scale
-            ps = spec_of[name]
+            ps = param_spec(cls, name)
             params[name] = float(min(max(value, float(ps.low)), float(ps.high)))
             gravity = G0
     vref = math.sqrt(G0 * scale)  # Froude velocity scale of the object
@@ -500,8 +505,7 @@ def make_clip(seed: int, index: int, shapes: tuple[str, ...] = TRAIN_SHAPES) -> 
     attempt failed to simulate."""
     last: dict[str, Any] | None = None
     failures = []
-    target = TARGETS[int(index) % len(TARGETS)]
-    for a in range(MAX_ATTEMPTS_OF.get(target, MAX_ATTEMPTS)):
+    for a in range(MAX_ATTEMPTS_OF.get(_target(index), MAX_ATTEMPTS)):
         spec = draw_motion_spec(seed, index, a, shapes)
         try:
             traj = simulate_clip(spec)
