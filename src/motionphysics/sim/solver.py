@@ -69,6 +69,99 @@ class _Call(tuple):
         self[0](*self[1:])
 
 
+class _Replays:
+    """CPU kernel launches packed once and replayed by a direct call of the kernel's entry
+    point: ``wp.launch`` packs every argument into ctypes on every call (~30 us for the
+    fused stress + P2G kernel's 23 arguments), a replay costs ~2 us. A substep makes 6
+    launches, the two chunked ones on two threads that contend for the GIL while packing.
+
+    A launch is keyed by its kernel, its dimension, the identity of its arrays and the
+    value of its other arguments; a hit also checks that each array is still the one it
+    was packed from (weak references: an id reused by a new array after the old one died
+    misses). Only for launches that nothing records (no tape, or ``record_tape=False``):
+    the caller decides. Falls back to ``wp.launch`` off the CPU or in Warp's debug or
+    floating-point-verification modes. The same kernel, inputs and outputs: bitwise the
+    same results."""
+
+    MAX = 64
+
+    def __init__(self, wp, device, enabled: bool = True) -> None:
+        import weakref
+
+        self.wp = wp
+        self.device = device
+        self._weakref = weakref.ref
+        self._entries: dict = {}
+        self._array = wp.array
+        from warp._src import context as ctx
+
+        self._capture = ctx._get_apic_capture_for_device
+        cfg = wp.config
+        self.enabled = enabled and device.is_cpu and cfg.mode != "debug" and not cfg.verify_fp
+
+    def launch(self, kernel, dim, inputs: list, outputs: list) -> None:
+        wp = self.wp
+        if not self.enabled:
+            wp.launch(
+                kernel,
+                dim=dim,
+                inputs=inputs,
+                outputs=outputs,
+                device=self.device,
+                record_tape=False,
+            )
+            return
+        if self._capture(self.device) is not None:  # a CPU graph capture records launches
+            wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+            return
+        array = self._array
+        key = [kernel, dim]
+        for a in (*inputs, *outputs):
+            t = type(a)
+            if t is array:
+                key.append(id(a))
+            elif hasattr(t, "_length_"):  # a Warp vector or matrix (a ctypes array)
+                key.append(tuple(a))
+            else:  # a scalar
+                key.append(a)
+        key = tuple(key)
+        entry = self._entries.get(key)
+        if entry is not None:
+            refs, call = entry
+            for r in refs:
+                if r() is None:
+                    entry = None
+                    break
+        if entry is None:
+            entry = self._pack(key, kernel, dim, inputs, outputs)
+        entry[1]()
+
+    def _pack(self, key, kernel, dim, inputs, outputs):
+        import ctypes
+        import functools
+
+        from warp._src import context as ctx
+
+        wp = self.wp
+        cmd = wp.launch(
+            kernel,
+            dim=dim,
+            inputs=inputs,
+            outputs=outputs,
+            device=self.device,
+            record_cmd=True,
+        )
+        args, _ = ctx._build_cpu_args_structs(kernel, cmd.hooks, cmd.params, False)
+        bounds = cmd.bounds
+        call = functools.partial(cmd.hooks.forward, ctypes.byref(bounds), ctypes.byref(args))
+        call.keep = (bounds, args, cmd.module_exec)  # the packed structs, the loaded module
+        refs = tuple(self._weakref(a) for a in (*inputs, *outputs) if type(a) is self._array)
+        if len(self._entries) >= self.MAX:
+            del self._entries[next(iter(self._entries))]
+        entry = self._entries[key] = (refs, call)
+        return entry
+
+
 @dataclass(frozen=True)
 class SolverConfig:
     """Options of :class:`Solver`."""
@@ -85,6 +178,10 @@ class SolverConfig:
     (``kernels._stress_elastic_p2g``, same results); recorded ones too (it then also stores
     the affine matrices and rotations, and records the two kernels' hand-written
     adjoints). False: two launches (for comparisons)."""
+    replay_launches: bool = True
+    """CPU, untaped substeps: the kernel launches are packed once and replayed
+    (:class:`_Replays`, same kernels and arguments). False: ``wp.launch`` every time (for
+    comparisons)."""
 
 
 @dataclass
@@ -217,6 +314,8 @@ class Solver:
         self._private: list = []  # the chunks' region-sized G2P adjoint buffers
         self.affine = None  # affine matrices of untaped substeps (see _affine)
         self._rollout_buffers: dict | None = None  # the rollouts' tape buffers (Rollout._context)
+        # the packed launches of untaped substeps
+        self._replays = _Replays(wp, self.device, self.config.replay_launches)
         self.classes = tuple(int(c) for c in np.unique(model.material_class.numpy()))
         """Material class ids present (one stress kernel launch each)."""
 
@@ -242,18 +341,14 @@ class Solver:
 
     def _region(self, state: State) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
         """(offset, shape) of the grid nodes the particles' stencils touch (+1 node margin)."""
-        wp = self.wp
         dims = np.asarray(self.model.grid_dims)
         if not (self.device.is_cpu and self.config.active_region):
             return (0, 0, 0), tuple(int(d) for d in dims)
-        wp.launch(
-            _k._bounds,
-            dim=1,
-            inputs=[state.x, state.particle_count],
-            outputs=[self._bounds],
-            device=self.model.device,
-            record_tape=False,
-        )
+        args = ([state.x, state.particle_count], [self._bounds])
+        if _active_tape() is None:
+            self._replays.launch(_k._bounds, 1, *args)
+        else:
+            self._launch_untaped(_k._bounds, 1, *args)
         b = self._bounds.numpy().astype(np.float64)
         g = (b - np.asarray(self.model.domain_lo)) / self.model.dx
         if not np.all(np.isfinite(g)):
@@ -520,11 +615,13 @@ class Solver:
                 R, store = self._R_dummy, 0
             else:
                 R, store = self._rotation(grid), 1
+            # untaped: packed launches replayed (each recorded substep has its own arrays)
+            launch = self._replays.launch if tape is None else self._launch_untaped
             self._chunked(
-                lambda c, start, n: wp.launch(
+                lambda c, start, n: launch(
                     _k._stress_elastic_p2g,
-                    dim=n,
-                    inputs=[
+                    n,
+                    [
                         state_in.x,
                         state_in.v,
                         state_in.C,
@@ -544,9 +641,7 @@ class Solver:
                         wp_off,
                         store,
                     ],
-                    outputs=[state_out.F, state_out.ep, mv, affine, R],
-                    device=m.device,
-                    record_tape=False,
+                    [state_out.F, state_out.ep, mv, affine, R],
                 )
             )
             if tape is not None:
@@ -564,14 +659,18 @@ class Solver:
         if not fused:
             self._p2g(state_in, affine, mv, wp_off)
         if self.num_objects == 1:
-            wp.launch(
-                _k._grid_update,
-                dim=shape,
-                inputs=[mv, self.chunks, self._gravity, dt, wp_off],
-                outputs=[grid.velocity],
-                device=m.device,
-                record_tape=not hand_grid,
-            )
+            args = ([mv, self.chunks, self._gravity, dt, wp_off], [grid.velocity])
+            if tape is None:
+                self._replays.launch(_k._grid_update, shape, *args)
+            else:
+                wp.launch(
+                    _k._grid_update,
+                    dim=shape,
+                    inputs=args[0],
+                    outputs=args[1],
+                    device=m.device,
+                    record_tape=not hand_grid,
+                )
             if hand_grid:
                 self._record_grid_update_adjoint(grid, mv, shape, wp_off)
         else:
@@ -657,6 +756,17 @@ class Solver:
             )
         )
         self._record_elastic_stress(tape, state_in, state_out, affine, R, dt)
+
+    def _launch_untaped(self, kernel, dim, inputs: list, outputs: list) -> None:
+        """``wp.launch`` that no tape records."""
+        self.wp.launch(
+            kernel,
+            dim=dim,
+            inputs=inputs,
+            outputs=outputs,
+            device=self.model.device,
+            record_tape=False,
+        )
 
     def _rotation(self, grid: Grid):
         """``grid.rotation``: where a recorded substep stores its elastic rotations."""
@@ -799,6 +909,13 @@ class Solver:
         needed = [state_in.x, grid.velocity, *outputs]
         custom = tape is not None and self._g2p_custom(state_in, grid, state_out)
         # (with a tape but some arrays without gradients, Warp records its own adjoint)
+        if tape is None:  # packed launches replayed
+            self._chunked(
+                lambda c, start, n: self._replays.launch(
+                    _k._g2p, n, self._g2p_args(state_in, grid, dt, start), outputs
+                )
+            )
+            return
         self._chunked(
             lambda c, start, n: wp.launch(
                 _k._g2p,
