@@ -191,3 +191,40 @@ def test_opposites_pair_up_the_groups():
     assert OPPOSITE["wobbles"] is None
     for a, b in (("bounces_high", "squashes_flat"), ("splashes", "oozes")):
         assert OPPOSITE[a] == b and OPPOSITE[b] == a
+
+
+def test_a_solid_is_called_stiff_or_soft_by_how_far_it_gave_on_impact():
+    """The firmness word follows the measured peak deformation, never the rebound: a hard
+    and a soft bounce rebound alike, and only the soft one may be called soft."""
+    from motionphysics.language.captions import FIRMNESS, SOFT_MAX_DEFORM, STIFF_MAX_DEFORM
+
+    up = 0.2 * np.sin(np.linspace(0, np.pi, 11))
+    bounce = motion_measures(_traj(_fall_then(up)))
+    hard = dict(bounce, max_deform=0.5 * STIFF_MAX_DEFORM)
+    soft = dict(bounce, max_deform=SOFT_MAX_DEFORM + 0.02, deform=0.01)
+    mid = dict(bounce, max_deform=0.5 * (STIFF_MAX_DEFORM + SOFT_MAX_DEFORM))
+    splash = dict(bounce, spread=2.5, max_spread=2.6, min_height=0.1, final_height=0.1,
+                  deform=0.5, max_deform=0.5)  # fmt: skip
+
+    def words(m, cls="elastic", n=60, **kw):
+        rng = np.random.default_rng(7)
+        out = [caption_clip(m, cls, "sphere", rng, **kw) for _ in range(n)]
+        return [t.lower().split() for t, _ in out], {g for _, g in out}
+
+    hard_w, g_hard = words(hard)
+    soft_w, g_soft = words(soft)
+    assert g_hard == g_soft == {"bounces_high"}  # same motion group either way
+    stiff_set, soft_set = set(FIRMNESS["stiff"]), set(FIRMNESS["soft"])
+    n_stiff = sum(bool(stiff_set & set(w)) for w in hard_w)
+    n_soft = sum(bool(soft_set & set(w)) for w in soft_w)
+    assert 0.25 * 60 < n_stiff < 0.75 * 60 and 0.25 * 60 < n_soft < 0.75 * 60  # about half
+    assert not any(soft_set & set(w) for w in hard_w)
+    assert not any(stiff_set & set(w) for w in soft_w)
+    # between the bounds, a flow, and with_firmness=False: no firmness word at all
+    for m, cls, kw in (
+        (mid, "elastic", {}),
+        (splash, "newtonian", {}),
+        (hard, "elastic", {"with_firmness": False}),
+    ):
+        ws, _ = words(m, cls, **kw)
+        assert not any((stiff_set | soft_set) & set(w) for w in ws)

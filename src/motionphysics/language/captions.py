@@ -32,6 +32,7 @@ __all__ = [
     "OPPOSITE",
     "caption_clip",
     "contrast_prompt",
+    "firmness",
     "group_prompt",
     "motion_group",
     "object_noun",
@@ -58,7 +59,7 @@ TRAIN: dict[str, tuple[str, ...]] = {
         "rebounds strongly off the ground",
         "hits the floor and springs back up",
         "is springy and bounces",
-        "bounces like a stiff rubber ball",
+        "bounces like a rubber ball",
     ),
     "barely_bounces": (
         "barely bounces",
@@ -139,6 +140,42 @@ and staying so is plastic."""
 
 NEUTRAL = ("falls onto the ground", "drops onto the floor", "is dropped")
 """Phrases for clips no group fits (no motion claim)."""
+
+FIRMNESS: dict[str, tuple[str, ...]] = {
+    "stiff": ("stiff", "hard", "firm"),
+    "soft": ("soft", "squishy", "floppy"),
+}
+"""Adjectives a caption may put before the noun of a solid from how far it deformed at its
+worst (``max_deform``, the distance from the best rigid motion over the object size):
+``stiff`` below :data:`STIFF_MAX_DEFORM`, ``soft`` above :data:`SOFT_MAX_DEFORM`, none in
+between. A person calls a ball stiff or soft from how much it gives on impact, not from
+how high it comes back (in our simulator a soft jelly rebounds as high as a hard ball:
+the training data's high bouncers span E from 10 to 10^5 x rho g L), so without these
+words "stiff, bounces high" and "soft, bounces high" name the same clips."""
+
+STIFF_MAX_DEFORM = 0.02
+"""Peak deformation below which a solid is called stiff (the ``keeps_shape`` bound)."""
+
+SOFT_MAX_DEFORM = 0.03
+"""Peak deformation above which a solid is called soft (the ``wobbles`` bound)."""
+
+FLOW_GROUPS = frozenset({"splashes", "oozes", "crumbles"})
+
+
+def firmness(measures: Mapping[str, float], group: str | None) -> str | None:
+    """``"stiff"``, ``"soft"`` or None for a clip: None for a flow (it has no shape to
+    keep) and between the two bounds."""
+    if group in FLOW_GROUPS or measures.get("granular", 0.0):
+        return None
+    if group is None and (measures["spread"] > 1.5 or measures["deform"] > 0.15):
+        return None
+    d = measures["max_deform"]
+    if d < STIFF_MAX_DEFORM:
+        return "stiff"
+    if d > SOFT_MAX_DEFORM:
+        return "soft"
+    return None
+
 
 _MATERIAL = {
     "elastic": ("rubber", "elastic", "rubbery"),
@@ -232,11 +269,14 @@ def caption_clip(
     *,
     held_out: bool = False,
     with_material: bool | None = None,
+    with_firmness: bool = True,
 ) -> tuple[str, str | None]:
     """One random caption for a clip -> (text, motion group or None).
 
     ``measures``: :func:`motion_measures` of the clip; ``cls``, ``shape``: its material
-    class and shape; ``held_out`` picks from :data:`HELD_OUT`.
+    class and shape; ``held_out`` picks from :data:`HELD_OUT`. A solid's caption names
+    its :func:`firmness` half of the time ("a stiff rubber ball bounces high", "a soft
+    cube wobbles"); ``with_firmness=False`` never does.
     """
     m = dict(measures)
     m["granular"] = 1.0 if cls == "sand" else 0.0
@@ -253,6 +293,12 @@ def caption_clip(
     else:
         noun = obj
     form = int(rng.integers(3))
+    firm = firmness(m, group)
+    if firm is not None and with_firmness:
+        words = FIRMNESS[firm]
+        word = words[int(rng.integers(len(words)))]
+        if rng.random() < 0.5:
+            noun = f"{word} {noun}"
     if form == 0:
         text = f"{_article(noun)} {noun} {phrase}"
     elif form == 1:
