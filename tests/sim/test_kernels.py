@@ -633,10 +633,31 @@ def test_hand_written_grid_update_adjoint_matches_warps_generated_one(chunks):
     adj_v = _arr(a_v, wp.vec3)
     wp.launch(
         K._grid_update_adjoint,
-        dim=region,
+        dim=region[:2],  # (i, j) rows, each looping over k
         inputs=[mv, chunks, off, adj_v],
         outputs=[hand],
         record_tape=False,
     )
     np.testing.assert_array_equal(hand.numpy(), gen.numpy())
     assert not np.any(adj_v.numpy())
+
+
+@pytest.mark.parametrize("chunks", [1, 2])
+def test_grid_update_rows_equals_grid_update(chunks):
+    """``_grid_update_rows`` (untaped substeps: (i, j) rows, a loop over k) writes the same
+    float32 node velocities as the 3-D ``_grid_update``, and nothing outside the region."""
+    rng = np.random.default_rng(3)
+    region = (6, 5, 7)
+    q = rng.normal(size=(chunks, *region, 4))
+    q[..., 3] = np.abs(q[..., 3]) * 1e-3
+    q[:, 1, :, 2, 3] = 0.0  # empty nodes
+    mv = _arr(q, wp.vec4)
+    ins = [mv, chunks, wp.vec3(0.0, 0.0, -9.8), 1e-3, wp.vec3i(3, 2, 4)]
+    out = []
+    for kernel, dim in ((K._grid_update, region), (K._grid_update_rows, region[:2])):
+        grid_v = _arr(np.full((*DIMS, 3), 7.0), wp.vec3)
+        wp.launch(kernel, dim=dim, inputs=ins, outputs=[grid_v], record_tape=False)
+        out.append(grid_v.numpy())
+    np.testing.assert_array_equal(out[1], out[0])
+    assert np.count_nonzero(out[1] != 7.0) > 0
+    assert np.all(out[1][:3] == 7.0) and np.all(out[1][9:] == 7.0)

@@ -178,8 +178,8 @@ def _region_copy(src, dst, dim, src_base, dst_base, device) -> None:
 
     wp.launch(
         K._copy_region_vec3,
-        dim=dim,
-        inputs=[src, src_base, dst_base],
+        dim=tuple(dim[:2]),  # (i, j) rows, each looping over k
+        inputs=[src, src_base, dst_base, int(dim[2])],
         outputs=[dst],
         device=device,
         record_tape=False,

@@ -511,6 +511,31 @@ def _grid_update(
 
 
 @wp.kernel(enable_backward=False)
+def _grid_update_rows(
+    grid_mv: wp.array4d(dtype=wp.vec4),
+    chunks: int,
+    gravity: wp.vec3,
+    dt: float,
+    off: wp.vec3i,
+    grid_v: wp.array3d(dtype=wp.vec3),
+):
+    # _grid_update (the same expressions per node) launched over the region's (i, j) rows,
+    # each thread looping over k: a 3-D launch divides the task index into (i, j, k) per
+    # node, which cost 2/3 of the kernel (measured 71 -> 25 us over a 21x21x20 region).
+    # Untaped substeps only (no generated adjoint).
+    i, j = wp.tid()
+    for k in range(grid_mv.shape[3]):
+        q = grid_mv[0, i, j, k]
+        if chunks > 1:
+            q = q + grid_mv[1, i, j, k]
+        m = q[3]
+        out = wp.vec3(0.0, 0.0, 0.0)
+        if m > GRID_MASS_EPS:
+            out = wp.vec3(q[0], q[1], q[2]) / m + dt * gravity
+        grid_v[i + off[0], j + off[1], k + off[2]] = out
+
+
+@wp.kernel(enable_backward=False)
 def _grid_update_adjoint(
     grid_mv: wp.array4d(dtype=wp.vec4),
     chunks: int,
@@ -522,20 +547,24 @@ def _grid_update_adjoint(
     # v = p / m + dt g at nodes with mass, so a_p = a_v / m, a_m = -(p . a_v) / m^2. Every
     # chunk's private grid gets the same adjoint (q = sum of the chunks' q), ASSIGNED, not
     # accumulated: the region's adjoint grids need no zeroing. The node velocity adjoint is
-    # consumed (zeroed), as in Warp's generated adjoint of a store.
-    i, j, k = wp.tid()
-    q = grid_mv[0, i, j, k]
-    if chunks > 1:
-        q = q + grid_mv[1, i, j, k]
-    m = q[3]
-    a_v = adj_grid_v[i + off[0], j + off[1], k + off[2]]
-    a = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    if m > GRID_MASS_EPS:
-        a_p = a_v / m
-        a = wp.vec4(a_p[0], a_p[1], a_p[2], 0.0 - wp.dot(wp.vec3(q[0], q[1], q[2]), a_v) / (m * m))
-    for c in range(chunks):
-        adj_grid_mv[c, i, j, k] = a
-    adj_grid_v[i + off[0], j + off[1], k + off[2]] = wp.vec3(0.0, 0.0, 0.0)
+    # consumed (zeroed), as in Warp's generated adjoint of a store. Launched over the
+    # region's (i, j) rows, each thread looping over k (as _grid_update_rows).
+    i, j = wp.tid()
+    for k in range(grid_mv.shape[3]):
+        q = grid_mv[0, i, j, k]
+        if chunks > 1:
+            q = q + grid_mv[1, i, j, k]
+        m = q[3]
+        a_v = adj_grid_v[i + off[0], j + off[1], k + off[2]]
+        a = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        if m > GRID_MASS_EPS:
+            a_p = a_v / m
+            a = wp.vec4(
+                a_p[0], a_p[1], a_p[2], 0.0 - wp.dot(wp.vec3(q[0], q[1], q[2]), a_v) / (m * m)
+            )
+        for c in range(chunks):
+            adj_grid_mv[c, i, j, k] = a
+        adj_grid_v[i + off[0], j + off[1], k + off[2]] = wp.vec3(0.0, 0.0, 0.0)
 
 
 CONTACT_NORMAL_EPS = wp.constant(1.0e-20)
@@ -983,33 +1012,42 @@ def _add_vec3_3d(src: wp.array3d(dtype=wp.vec3), dst: wp.array3d(dtype=wp.vec3))
     dst[i, j, k] = dst[i, j, k] + src[i, j, k]
 
 
-@wp.kernel
+@wp.kernel(enable_backward=False)
 def _add_region_vec3(src: wp.array3d(dtype=wp.vec3), off: wp.vec3i, dst: wp.array3d(dtype=wp.vec3)):
-    # dst[off + ijk] += src[ijk] (a region-sized private adjoint grid into the full one)
-    i, j, k = wp.tid()
-    dst[i + off[0], j + off[1], k + off[2]] = dst[i + off[0], j + off[1], k + off[2]] + src[i, j, k]
+    # dst[off + ijk] += src[ijk] (a region-sized private adjoint grid into the full one).
+    # Launched over src's (i, j) rows, each thread looping over k (see _grid_update_rows).
+    i, j = wp.tid()
+    for k in range(src.shape[2]):
+        dst[i + off[0], j + off[1], k + off[2]] = (
+            dst[i + off[0], j + off[1], k + off[2]] + src[i, j, k]
+        )
 
 
-@wp.kernel
+@wp.kernel(enable_backward=False)
 def _copy_region_vec3(
     src: wp.array3d(dtype=wp.vec3),
     src_base: wp.vec3i,
     dst_base: wp.vec3i,
+    nz: int,
     dst: wp.array3d(dtype=wp.vec3),
 ):
-    # dst[t + dst_base] <- src[t + src_base] over the box launched over: a full grid's
+    # dst[t + dst_base] <- src[t + src_base] over the box (launched over its (i, j) rows,
+    # each thread looping over its nz nodes in k, see _grid_update_rows): a full grid's
     # sub-box into a box-sized array (src_base = box start, dst_base = 0) or back.
-    i, j, k = wp.tid()
-    dst[i + dst_base[0], j + dst_base[1], k + dst_base[2]] = src[
-        i + src_base[0], j + src_base[1], k + src_base[2]
-    ]
+    i, j = wp.tid()
+    for k in range(nz):
+        dst[i + dst_base[0], j + dst_base[1], k + dst_base[2]] = src[
+            i + src_base[0], j + src_base[1], k + src_base[2]
+        ]
 
 
-@wp.kernel
-def _zero_region_vec3(off: wp.vec3i, dst: wp.array3d(dtype=wp.vec3)):
-    # dst <- 0 on the sub-box starting at `off` (launched over the box).
-    i, j, k = wp.tid()
-    dst[i + off[0], j + off[1], k + off[2]] = wp.vec3(0.0, 0.0, 0.0)
+@wp.kernel(enable_backward=False)
+def _zero_region_vec3(off: wp.vec3i, nz: int, dst: wp.array3d(dtype=wp.vec3)):
+    # dst <- 0 on the sub-box starting at `off` (launched over the box's (i, j) rows, each
+    # thread looping over its nz nodes in k, see _grid_update_rows).
+    i, j = wp.tid()
+    for k in range(nz):
+        dst[i + off[0], j + off[1], k + off[2]] = wp.vec3(0.0, 0.0, 0.0)
 
 
 @wp.kernel

@@ -249,8 +249,8 @@ class Grid:
                 wp = init_warp()
                 wp.launch(
                     _k._zero_region_vec3,
-                    dim=tuple(self.mv.shape[1:]),
-                    inputs=[wp.vec3i(*self.offset)],
+                    dim=tuple(self.mv.shape[1:3]),  # (i, j) rows, each looping over k
+                    inputs=[wp.vec3i(*self.offset), int(self.mv.shape[3])],
                     outputs=[g],
                     device=g.device,
                     record_tape=False,
@@ -468,7 +468,7 @@ class Solver:
     def _grid_update_backward(self, grid: Grid, mv, shape, wp_off) -> None:
         self.wp.launch(
             _k._grid_update_adjoint,
-            dim=shape,
+            dim=tuple(shape[:2]),  # (i, j) rows, each looping over k
             inputs=[mv, self.chunks, wp_off, grid.velocity.grad],
             outputs=[mv.grad],
             device=self.model.device,
@@ -580,8 +580,8 @@ class Solver:
             if not (custom and grid.clean_on(off, shape)):
                 wp.launch(
                     _k._zero_region_vec3,
-                    dim=shape,
-                    inputs=[wp_off],
+                    dim=tuple(shape[:2]),  # (i, j) rows, each looping over k
+                    inputs=[wp_off, int(shape[2])],
                     outputs=[grid.velocity.grad],
                     device=m.device,
                     record_tape=False,
@@ -661,7 +661,8 @@ class Solver:
         if self.num_objects == 1:
             args = ([mv, self.chunks, self._gravity, dt, wp_off], [grid.velocity])
             if tape is None:
-                self._replays.launch(_k._grid_update, shape, *args)
+                # (the same per-node expressions, launched over the (i, j) rows)
+                self._replays.launch(_k._grid_update_rows, shape[:2], *args)
             else:
                 wp.launch(
                     _k._grid_update,
@@ -997,7 +998,7 @@ class Solver:
             for g in private[1:]:
                 wp.launch(
                     _k._add_region_vec3,
-                    dim=g.shape,
+                    dim=tuple(g.shape[:2]),  # (i, j) rows, each looping over k
                     inputs=[g, off],
                     outputs=[grid.velocity.grad],
                     device=dev,
