@@ -45,6 +45,16 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real" / "donut.ply"
+BUILTIN = ("duck", "sphere", "bird", "cube")
+"""Builtin scenes ``--scenes`` also takes: shapes the direction bar was not measured on."""
+NOUN = {
+    "donut": "ring",
+    "capsule": "capsule",
+    "duck": "duck",
+    "sphere": "ball",
+    "bird": "bird",
+    "cube": "cube",
+}
 
 PAIRS = {
     "elastic": {
@@ -91,6 +101,14 @@ def _scenes(tmp: Path, which: list[str]) -> dict[str, dict]:
             "translate": [0, 0, 0.3],
             "max_particles": 1500,
         }
+    for name in BUILTIN:
+        if name in which:  # scenes the prior was never tuned on (other shapes, same start)
+            out[f"{name} (builtin)"] = {
+                "source": f"builtin:{name}",
+                "scale": 0.3,
+                "translate": [0, 0, 0.3],
+                "max_particles": 1500,
+            }
     if "mesh" in which:
         out["capsule (mesh)"] = {
             "source": str(_mesh(tmp)),
@@ -155,7 +173,7 @@ def direction(args, tmp: Path) -> dict:
     for sname, scene in scenes.items():
         for cls in args.classes:
             pair = PAIRS[cls]
-            obj = "ring" if "donut" in sname else "capsule"
+            obj = NOUN[sname.split()[0]]
             for seed in range(args.seeds):
                 for side in ("up", "down"):
                     other = "down" if side == "up" else "up"
@@ -235,7 +253,9 @@ def main() -> None:
     ap.add_argument("--iters", type=int, default=20)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--scenes", nargs="+", default=["real", "mesh"], choices=["real", "mesh"])
+    ap.add_argument(
+        "--scenes", nargs="+", default=["real", "mesh"], choices=["real", "mesh", *BUILTIN]
+    )
     ap.add_argument("--classes", nargs="+", default=["elastic", "newtonian"], choices=list(PAIRS))
     ap.add_argument("--loss", default="lmd", choices=["lmd", "sds"])
     ap.add_argument("--loss-options", type=json.loads, default={})
