@@ -165,6 +165,12 @@ def test_caption_uses_only_its_groups_phrases(held_out):
         ("Thick honey oozes slowly over the floor", "oozes", "Thick honey splashes and spreads"),
         ("Thin runny water splashes and spreads thin", "splashes", "Thin runny water oozes slowly"),
         ("A sand castle crumbles into a heap", "crumbles", "A sand castle keeps its shape"),
+        # keeping its shape is contrasted with losing it for good (not with a wobble)
+        (
+            "A hard clay ball is dropped and keeps its shape when it lands",
+            "keeps_shape",
+            "A hard clay ball squashes and stays flat",
+        ),
         ("A rubber duck hits the ground and bounces back", "bounces_high", None),
         # no motion claim: nothing to contrast with
         ("A rubber duck", None, ""),
