@@ -489,6 +489,28 @@ def _stress_elastic_p2g(
         ti = ti + Ae0
 
 
+@wp.func
+def _node_velocity(
+    grid_mv: wp.array4d(dtype=wp.vec4),
+    chunks: int,
+    gravity: wp.vec3,
+    dt: float,
+    i: int,
+    j: int,
+    k: int,
+):
+    """A region node's velocity after the grid update: (sum of the chunks' momenta) / mass
+    + dt g where it has mass, else zero."""
+    q = grid_mv[0, i, j, k]
+    if chunks > 1:
+        q = q + grid_mv[1, i, j, k]
+    m = q[3]
+    out = wp.vec3(0.0, 0.0, 0.0)
+    if m > GRID_MASS_EPS:
+        out = wp.vec3(q[0], q[1], q[2]) / m + dt * gravity
+    return out
+
+
 @wp.kernel
 def _grid_update(
     grid_mv: wp.array4d(dtype=wp.vec4),
@@ -500,14 +522,9 @@ def _grid_update(
 ):
     # Launched over the region; grid_mv is region-sized, grid_v full-sized.
     i, j, k = wp.tid()
-    q = grid_mv[0, i, j, k]
-    if chunks > 1:
-        q = q + grid_mv[1, i, j, k]
-    m = q[3]
-    out = wp.vec3(0.0, 0.0, 0.0)
-    if m > GRID_MASS_EPS:
-        out = wp.vec3(q[0], q[1], q[2]) / m + dt * gravity
-    grid_v[i + off[0], j + off[1], k + off[2]] = out
+    grid_v[i + off[0], j + off[1], k + off[2]] = _node_velocity(
+        grid_mv, chunks, gravity, dt, i, j, k
+    )
 
 
 @wp.kernel(enable_backward=False)
@@ -525,14 +542,8 @@ def _grid_update_rows(
     # Untaped substeps only (no generated adjoint).
     i, j = wp.tid()
     for k in range(grid_mv.shape[3]):
-        q = grid_mv[0, i, j, k]
-        if chunks > 1:
-            q = q + grid_mv[1, i, j, k]
-        m = q[3]
-        out = wp.vec3(0.0, 0.0, 0.0)
-        if m > GRID_MASS_EPS:
-            out = wp.vec3(q[0], q[1], q[2]) / m + dt * gravity
-        grid_v[i + off[0], j + off[1], k + off[2]] = out
+        v = _node_velocity(grid_mv, chunks, gravity, dt, i, j, k)
+        grid_v[i + off[0], j + off[1], k + off[2]] = v
 
 
 @wp.kernel(enable_backward=False)
