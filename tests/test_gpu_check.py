@@ -562,7 +562,7 @@ def _tiny_wheel(folder: Path) -> Path:
     return whl
 
 
-def test_wheel_pack_in_chunks_installs_only_when_complete(tmp_path):
+def test_wheel_pack_in_chunks_unpacks_only_when_complete(tmp_path):
     wheels = tmp_path / "wheels"
     wheels.mkdir()
     whl = _tiny_wheel(wheels)
@@ -579,8 +579,13 @@ def test_wheel_pack_in_chunks_installs_only_when_complete(tmp_path):
     assert res["status"].startswith(f"incomplete: chunk(s) 2 of {manifest['chunks']}")
     shutil.move(moved, pack / "2")
     res = gc.install_pack(sys.executable, env, pack)
-    assert res["status"] == "installed"
+    assert manifest["format"] == "site.tar.xz"
+    assert res["status"].startswith("installed")
+    here = "%d.%d" % sys.version_info[:2]
+    # the pack is installed for the GPU machine's Python; another one is named
+    assert ("running" in res["status"]) == (here != gc.PACK_PYTHON)
     assert (res["site"] / "gpucheckdemo" / "__init__.py").read_text() == "VALUE = 42\n"
+    assert (res["site"] / "gpucheckdemo-0.1.dist-info" / "METADATA").exists()
     assert gc.install_pack(sys.executable, env, pack)["status"] == "already installed"
     # a chunk that does not belong: the sha256 catches it
     (pack / "1" / "chunk").write_bytes(b"x" + (pack / "1" / "chunk").read_bytes()[1:])

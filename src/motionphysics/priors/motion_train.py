@@ -433,7 +433,7 @@ def train(
                 rec = {
                     "step": state["step"],
                     "loss": float(np.mean(run_loss[-o.log_every :])),
-                    "time_s": round(state["elapsed_s"], 1),
+                    "time_s": round(state["elapsed_s"], 3),
                     "epoch": state["epoch"],
                 }
                 if run_hinge:
@@ -442,7 +442,7 @@ def train(
                 log(json.dumps(rec))
             if state["step"] % o.save_every == 0:
                 save()
-        rec = {"step": state["step"], "time_s": round(state["elapsed_s"], 1)}
+        rec = {"step": state["step"], "time_s": round(state["elapsed_s"], 3)}
         state["log"].append(rec)
         save()
         log(json.dumps({"final": rec, "checkpoint": str(out)}))
