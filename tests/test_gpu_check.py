@@ -581,7 +581,7 @@ def test_wheel_pack_in_chunks_unpacks_only_when_complete(tmp_path):
     res = gc.install_pack(sys.executable, env, pack)
     assert manifest["format"] == "site.tar.xz"
     assert res["status"].startswith("installed")
-    here = "%d.%d" % sys.version_info[:2]
+    here = f"{sys.version_info[0]}.{sys.version_info[1]}"
     # the pack is installed for the GPU machine's Python; another one is named
     assert ("running" in res["status"]) == (here != gc.PACK_PYTHON)
     assert (res["site"] / "gpucheckdemo" / "__init__.py").read_text() == "VALUE = 42\n"
