@@ -605,8 +605,8 @@ def test_hand_written_transfer_adjoints_match_warps_generated_ones(objects):
 def test_hand_written_grid_update_adjoint_matches_warps_generated_one(chunks):
     """``_grid_update_adjoint`` against the adjoint Warp generates from ``_grid_update``
     (random momenta, some nodes without mass, a random node-velocity cotangent on the
-    region): the same formulas, so the same float32 values; it assigns every chunk's
-    momentum adjoint and consumes the velocity adjoint."""
+    region): the same formulas, so the same float32 values up to round-off; it assigns
+    every chunk's momentum adjoint and consumes the velocity adjoint."""
     rng = np.random.default_rng(7)
     region = (6, 5, 7)
     q = rng.normal(size=(chunks, *region, 4))
@@ -638,7 +638,9 @@ def test_hand_written_grid_update_adjoint_matches_warps_generated_one(chunks):
         outputs=[hand],
         record_tape=False,
     )
-    np.testing.assert_array_equal(hand.numpy(), gen.numpy())
+    # the same formulas up to one reciprocal per node (1 / m, instead of four divisions)
+    # and FMA contraction: equal to float32 round-off
+    np.testing.assert_allclose(hand.numpy(), gen.numpy(), rtol=2e-5, atol=0)
     assert not np.any(adj_v.numpy())
 
 
