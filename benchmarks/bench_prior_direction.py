@@ -78,6 +78,35 @@ PAIRS = {
         "down": "A soft clay {obj} is dropped, squashes flat and stays squashed",
         "bar": 3.0,
     },
+    "sand": {
+        "param": "theta_fric",
+        "start": {"class": "sand", "density": 1600, "theta_fric": 35.0},
+        "up": "A {obj} of coarse, rough gravel is dropped and stays a tall, steep heap",
+        "down": "A {obj} of fine, dry sand is dropped, collapses and spreads out flat",
+        "bar": 1.3,  # the friction angle's whole range is 20-50 degrees (2.5x)
+    },
+    "non_newtonian": {
+        "param": "tau_Y",
+        "start": {
+            "class": "non_newtonian",
+            "density": 1200,
+            "mu": 1.0,
+            "kappa": 2.0e9,
+            "tau_Y": 100.0,
+            "eta": 0.5,
+            "n": 0.6,
+        },
+        "up": "A {obj} of thick toothpaste is dropped and holds its shape like a stiff paste",
+        "down": "A {obj} of runny paint is dropped, flows and spreads out thin",
+        "bar": 3.0,
+    },
+    "metal": {
+        "param": "tau_Y",
+        "start": {"class": "metal", "density": 7800, "E": 2.0e11, "nu": 0.3, "tau_Y": 2.0e7},
+        "up": "A hard steel {obj} hits the ground and keeps its shape, not a dent",
+        "down": "A soft lead {obj} hits the ground, dents and squashes flat",
+        "bar": 3.0,
+    },
 }
 
 
@@ -121,9 +150,16 @@ def _scenes(tmp: Path, which: list[str]) -> dict[str, dict]:
 
 
 def _config(
-    scene: dict, pair: dict, prompt: str, loss: dict, iters: int, seed: int, prior: str = "motion"
+    scene: dict,
+    pair: dict,
+    prompt: str,
+    loss: dict,
+    iters: int,
+    seed: int,
+    prior: str = "motion",
+    all_params: bool = False,
 ) -> dict:
-    return {
+    cfg = {
         "scene": scene,
         "prompt": prompt,
         "material": dict(pair["start"]),
@@ -147,6 +183,9 @@ def _config(
             "params": [pair["param"]],
         },
     }
+    if all_params:  # as a user who names none: every parameter of the class is refined
+        del cfg["optimize"]["params"]
+    return cfg
 
 
 def _run(cfg: dict, out: Path, prior_path: str | None) -> dict:
@@ -181,7 +220,14 @@ def direction(args, tmp: Path) -> dict:
                     if args.contrast:
                         loss["negative_prompt"] = pair[other].format(obj=obj)
                     cfg = _config(
-                        scene, pair, pair[side].format(obj=obj), loss, args.iters, seed, args.prior
+                        scene,
+                        pair,
+                        pair[side].format(obj=obj),
+                        loss,
+                        args.iters,
+                        seed,
+                        args.prior,
+                        args.all_params,
                     )
                     key = (sname, cls, seed, side)
                     jobs.append((key, cfg, args.out / f"{len(jobs):03d}"))
@@ -262,6 +308,11 @@ def main() -> None:
     ap.add_argument("--contrast", action="store_true", help="negative_prompt = the other prompt")
     ap.add_argument("--prior", default="motion", choices=["motion", "cogvideox", "modelscope"])
     ap.add_argument("--prior-path", default=None, help="a prior checkpoint (default: shipped)")
+    ap.add_argument(
+        "--all-params",
+        action="store_true",
+        help="leave optimize.params out: refine every parameter of the class (a user's default)",
+    )
     ap.add_argument("--invariance", action="store_true")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()

@@ -94,6 +94,26 @@ def test_embedded_prior_refines_without_a_path(tmp_path):
     assert recs[0]["loss_samples"] == 8.0 and recs[0]["guidance"] == 5.0
 
 
+def test_an_event_clause_does_not_decide_the_contrast(tmp_path):
+    """A user's prompt through a config file: "hits the ground" is an event, not a motion;
+    the contrast is read from "leaps back up" (a high bounce), so the run is pushed away
+    from squashing flat, and params.json says what was asked."""
+    import yaml
+
+    data = yaml.safe_load(TINY.read_text())
+    data["prompt"] = "A super ball hits the ground and leaps back up"
+    data["optimize"] = {"prior": "motion", "loss": "lmd", "iterations": 1, "boost": 1}
+    cfg = tmp_path / "super.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "o"
+    assert main(["run", str(cfg), "--out", str(out), "--quiet"]) == 0
+    opt = json.loads((out / "params.json").read_text())["optimise"]
+    assert opt["loss_options"]["lmd"]["negative_prompt_used"] == (
+        "A super ball squashes and stays flat"
+    )
+    assert opt["motion"]["asked"] == "bounces_high"
+
+
 def test_config_options_win_over_the_priors_loss_defaults(tmp_path):
     import yaml
 

@@ -234,3 +234,38 @@ def test_a_solid_is_called_stiff_or_soft_by_how_far_it_gave_on_impact():
     ):
         ws, _ = words(m, cls, **kw)
         assert not any((stiff_set | soft_set) & set(w) for w in ws)
+
+
+@pytest.mark.parametrize(
+    "prompt, group",
+    [
+        # an event clause ("hits the ground") is no motion claim: the motion clause decides
+        ("A super ball hits the ground and leaps back up", "bounces_high"),
+        ("A rigid wooden block hits the floor and stays the same", "keeps_shape"),
+        ("A soft metal rod bends permanently when it hits the ground", "squashes_flat"),
+        # "but" splits clauses like "and"
+        ("The stone statue falls over but stays intact", "keeps_shape"),
+        # verbs beyond the phrasings' first words, and an adverb before the verb
+        ("Honey drips slowly", "oozes"),
+        ("Cold honey trickles slowly down", "oozes"),
+        ("The bouncy ball springs off the floor", "bounces_high"),
+        ("A rubber toy falls and bounces several times", "bounces_high"),
+        # still no claim: an event alone
+        ("A metal rod is dropped on the floor", None),
+        ("A ball hits the ground", None),
+    ],
+)
+def test_the_motion_reading_skips_event_clauses_and_finds_more_verbs(prompt, group):
+    from motionphysics.language.captions import prompt_motion_group
+
+    assert prompt_motion_group(prompt)[0] == group
+
+
+def test_reading_phrasings_never_caption_a_training_clip():
+    from motionphysics.language.captions import READING_EXTRA, READING_NEUTRAL
+
+    assert set(READING_EXTRA) == set(GROUPS)
+    captions = {p for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g])}
+    extras = [p for g in GROUPS for p in READING_EXTRA[g]]
+    assert len(set(extras)) == len(extras) and not captions & set(extras)
+    assert not captions & set(READING_NEUTRAL)

@@ -139,6 +139,75 @@ are liquids, keeping its shape is rigid (metal), crumbling is granular, squashin
 and staying so is plastic."""
 
 NEUTRAL = ("falls onto the ground", "drops onto the floor", "is dropped")
+
+READING_EXTRA: dict[str, tuple[str, ...]] = {
+    "bounces_high": (
+        "bounces several times",
+        "keeps bouncing",
+        "leaps back up",
+        "bounces off the floor",
+        "springs off the ground",
+        "bounces up and down",
+    ),
+    "barely_bounces": (
+        "thuds down with a tiny rebound",
+        "lands with a dull thud and a little hop",
+        "bounces once, weakly",
+    ),
+    "wobbles": (
+        "jiggles like a pudding",
+        "vibrates after landing",
+    ),
+    "splashes": (
+        "spills across the floor",
+        "pours out and spreads",
+        "splatters everywhere",
+        "sloshes and spreads out",
+        "bursts into a puddle",
+    ),
+    "oozes": (
+        "drips slowly",
+        "flows like thick syrup",
+        "slowly sags into a puddle",
+        "creeps along sluggishly",
+    ),
+    "keeps_shape": (
+        "stays intact",
+        "does not bend",
+        "remains solid and undamaged",
+        "does not break or bend",
+    ),
+    "crumbles": (
+        "falls apart into grains",
+        "breaks apart into powder",
+        "collapses into a pile of sand",
+        "slumps into a heap of grains",
+    ),
+    "squashes_flat": (
+        "flattens into a pancake",
+        "is crushed flat",
+        "gets dented",
+        "bends and stays bent",
+        "splats flat and stays flat",
+    ),
+}
+"""More phrasings of each group that only READ prompts (the contrast, the motion asked
+for, the kb's motion reading): never a training caption, so the prior's held-out
+discrimination is unaffected. Everyday words a user writes for each motion."""
+
+READING_NEUTRAL = (
+    *NEUTRAL,
+    "hits the ground",
+    "hits the floor",
+    "lands on the ground",
+    "falls over",
+    "is thrown",
+    "falls from a height",
+    "tips over",
+)
+"""Clauses that tell an event, not a motion: a clause at least as close to one of these as
+to every group's phrasings makes no motion claim ("A ball hits the ground and leaps back
+up" is read from "leaps back up", not from "hits the ground")."""
 """Phrases for clips no group fits (no motion claim)."""
 
 FIRMNESS: dict[str, tuple[str, ...]] = {
@@ -352,7 +421,18 @@ MIN_MOTION_SIMILARITY = 0.45
 any group (then there is nothing to contrast it with)."""
 
 _VERBS = {"is", "are", "hits", "falls", "drops", "lands", "stays", "keeps", "flows", "moves",
-          "gets", "goes", "comes", "will", "does", "was", "then", "and"}  # fmt: skip
+          "gets", "goes", "comes", "will", "does", "was", "then", "and",
+          # third-person motion verbs and the adverbs that open a predicate ("Honey drips
+          # slowly", "A blob of molasses slowly spreads out")
+          "drips", "springs", "spreads", "slides", "rolls", "pours", "spills", "slumps",
+          "sags", "leaps", "jumps", "rebounds", "squashes", "flattens", "dents", "breaks",
+          "shatters", "deforms", "settles", "tumbles", "topples", "sinks", "stretches",
+          "bends", "sways", "plops", "thuds", "smashes", "crashes", "collapses", "tips",
+          "rocks", "quivers", "trembles", "shakes", "vibrates", "runs", "creeps", "bursts",
+          "splats", "sloshes", "melts", "crumbles", "bounces", "wobbles", "jiggles",
+          "splashes", "oozes", "remains", "wiggles", "trickles", "gushes", "hops", "seeps",
+          "flops", "squishes", "squelches", "glides", "skids", "cracks", "sticks",
+          "slowly", "quickly", "gently", "suddenly"}  # fmt: skip
 
 
 def _sentence_embeddings(texts: list[str]):
@@ -365,8 +445,8 @@ def _sentence_embeddings(texts: list[str]):
 @functools.cache
 def _verb_starts() -> frozenset[str]:
     """Words that begin a predicate: the first words of every phrasing, and _VERBS."""
-    phrases = [p for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g])] + list(NEUTRAL)
-    return frozenset(p.split()[0] for p in phrases) | _VERBS
+    phrases = [p for g in GROUPS for p in (*TRAIN[g], *HELD_OUT[g], *READING_EXTRA[g])]
+    return frozenset(p.split()[0] for p in [*phrases, *READING_NEUTRAL]) | _VERBS
 
 
 def _split(prompt: str) -> tuple[str, str]:
@@ -377,12 +457,20 @@ def _split(prompt: str) -> tuple[str, str]:
     for i, w in enumerate(words):
         if i > 0 and w.lower().strip(",;") in starts:
             return " ".join(words[:i]).rstrip(",;"), " ".join(words[i:])
+    # no verb we know: the first word ending in "s" that follows a noun ("The jelly
+    # wiggles"), not an article, adjective slot or "of" ("a glass ball", "of molasses")
+    for i, w in enumerate(words):
+        prev = words[i - 1].lower() if i > 0 else ""
+        if i > 1 and w.lower().endswith("s") and not w.lower().endswith("ss"):
+            if prev not in ("a", "an", "the", "of", "some", "two", "three", "its", "their"):
+                return " ".join(words[:i]).rstrip(",;"), " ".join(words[i:])
     return "the object", ""
 
 
 def prompt_motion_group(prompt: str) -> tuple[str | None, float]:
     """The motion group whose phrasings (training and held-out) a clause of the prompt's
-    predicate (what it says the thing does; clauses split at commas, "and", "then") is
+    predicate (what it says the thing does; clauses split at commas, "and", "then", "but",
+    "while") is
     closest to, and that similarity. A clause counts only when its closest group is at
     least MIN_MOTION_SIMILARITY and closer than every neutral phrase ("is dropped").
     None when no clause counts, or the prompt has no verb."""
@@ -402,12 +490,16 @@ def prompt_motion_reading(
     _, pred = _split(prompt)
     if not pred and whole_if_no_verb:
         pred = prompt.strip().rstrip(".!")
-    clauses = [c.strip() for c in re.split(r",|;|\band\b|\bthen\b", pred) if c.strip()]
+    split = r",|;|\band\b|\bthen\b|\bbut\b|\bwhile\b"
+    clauses = [c.strip() for c in re.split(split, pred) if c.strip()]
     if not clauses:
         return None, 0.0, ""
-    table = {g: (*TRAIN[g], *(HELD_OUT[g] if held_out_anchors else ())) for g in GROUPS}
+    table = {
+        g: (*TRAIN[g], *READING_EXTRA[g], *(HELD_OUT[g] if held_out_anchors else ()))
+        for g in GROUPS
+    }
     phrases = [(g, p) for g in GROUPS for p in table[g]]
-    emb = _sentence_embeddings(clauses + [p for _, p in phrases] + list(NEUTRAL))
+    emb = _sentence_embeddings(clauses + [p for _, p in phrases] + list(READING_NEUTRAL))
     k = len(clauses)
     sims = emb[:k] @ emb[k:].T  # [clauses, phrases + neutral]
     found: tuple[str | None, float, str] = (None, 0.0, "")
