@@ -279,7 +279,7 @@ def _stress_elastic_adjoint(
     # matrix (no inverse, no division), vee(R^T B) from its 6 off-diagonal entries, R [y]x
     # row by row as R_i x y, the linear solve by the symmetric cofactors of G, and one
     # reciprocal each of 1 + nu and (1 + nu)(1 - 2 nu) for the Lame parameters and their
-    # derivatives (3 divisions per particle instead of 9).
+    # derivatives (4 divisions per particle instead of 9).
     p = wp.tid() + p_offset
     if material_class[p] == ELASTIC_CLASS:
         inv_dx = 1.0 / dx
@@ -631,9 +631,7 @@ def _grid_update_adjoint(
         if m > GRID_MASS_EPS:
             rm = 1.0 / m  # one division per node instead of four
             a_p = rm * a_v
-            a = wp.vec4(
-                a_p[0], a_p[1], a_p[2], 0.0 - wp.dot(wp.vec3(q[0], q[1], q[2]), a_p) * rm
-            )
+            a = wp.vec4(a_p[0], a_p[1], a_p[2], 0.0 - wp.dot(wp.vec3(q[0], q[1], q[2]), a_p) * rm)
         for c in range(chunks):
             adj_grid_mv[c, i, j, k] = a
         adj_grid_v[i + off[0], j + off[1], k + off[2]] = wp.vec3(0.0, 0.0, 0.0)
