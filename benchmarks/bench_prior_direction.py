@@ -213,7 +213,7 @@ def direction(args, tmp: Path) -> dict:
         for cls in args.classes:
             pair = PAIRS[cls]
             obj = NOUN[sname.split()[0]]
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 for side in ("up", "down"):
                     other = "down" if side == "up" else "up"
                     loss = {"type": args.loss, **args.loss_options}
@@ -239,7 +239,7 @@ def direction(args, tmp: Path) -> dict:
         for cls in args.classes:
             pair = PAIRS[cls]
             name = pair["param"]
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 up = results[(sname, cls, seed, "up")]
                 down = results[(sname, cls, seed, "down")]
                 ratio = up["params"][name] / down["params"][name]
@@ -298,6 +298,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--iters", type=int, default=20)
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. + seeds - 1")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument(
         "--scenes", nargs="+", default=["real", "mesh"], choices=["real", "mesh", *BUILTIN]
