@@ -112,6 +112,27 @@ def test_an_event_clause_does_not_decide_the_contrast(tmp_path):
         "A super ball squashes and stays flat"
     )
     assert opt["motion"]["asked"] == "bounces_high"
+    assert opt["prior_limits"] == []  # an elastic ball: nothing the words cannot set
+
+
+def test_sand_under_the_motion_prior_says_the_words_do_not_set_its_friction(tmp_path, capsys):
+    """The motion prior cannot tell a steep heap from a flat spread: a sand run through a
+    config file says so in one warning, which params.json keeps; an elastic run does not."""
+    import yaml
+
+    data = yaml.safe_load(TINY.read_text())
+    data["prompt"] = "A ball of coarse gravel is dropped and stays a tall, steep heap"
+    data["material"] = {"class": "sand", "density": 1600, "theta_fric": 35.0}
+    data["optimize"] = {"prior": "motion", "loss": "lmd", "iterations": 1, "boost": 1}
+    cfg = tmp_path / "gravel.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "o"
+    assert main(["run", str(cfg), "--out", str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if "cannot tell a steep heap" in x]
+    assert len(lines) == 1 and "material.theta_fric" in lines[0]
+    opt = json.loads((out / "params.json").read_text())["optimise"]
+    assert len(opt["prior_limits"]) == 1 and "theta_fric" in opt["optimised"]
 
 
 def test_config_options_win_over_the_priors_loss_defaults(tmp_path):
