@@ -139,6 +139,7 @@ are liquids, keeping its shape is rigid (metal), crumbling is granular, squashin
 and staying so is plastic."""
 
 NEUTRAL = ("falls onto the ground", "drops onto the floor", "is dropped")
+"""Phrases for clips no group fits (no motion claim)."""
 
 READING_EXTRA: dict[str, tuple[str, ...]] = {
     "bounces_high": (
@@ -208,7 +209,6 @@ READING_NEUTRAL = (
 """Clauses that tell an event, not a motion: a clause at least as close to one of these as
 to every group's phrasings makes no motion claim ("A ball hits the ground and leaps back
 up" is read from "leaps back up", not from "hits the ground")."""
-"""Phrases for clips no group fits (no motion claim)."""
 
 FIRMNESS: dict[str, tuple[str, ...]] = {
     "stiff": ("stiff", "hard", "firm"),
@@ -468,12 +468,12 @@ def _split(prompt: str) -> tuple[str, str]:
 
 
 def prompt_motion_group(prompt: str) -> tuple[str | None, float]:
-    """The motion group whose phrasings (training and held-out) a clause of the prompt's
-    predicate (what it says the thing does; clauses split at commas, "and", "then", "but",
-    "while") is
-    closest to, and that similarity. A clause counts only when its closest group is at
-    least MIN_MOTION_SIMILARITY and closer than every neutral phrase ("is dropped").
-    None when no clause counts, or the prompt has no verb."""
+    """The motion group whose phrasings (training, held-out and :data:`READING_EXTRA`) a
+    clause of the prompt's predicate (what it says the thing does; clauses split at commas,
+    "and", "then", "but", "while") is closest to, and that similarity. A clause counts
+    only when its closest group is at least MIN_MOTION_SIMILARITY and closer than every
+    :data:`READING_NEUTRAL` phrase ("is dropped", "hits the ground"). None when no clause
+    counts, or the prompt has no verb."""
     group, sim, _ = prompt_motion_reading(prompt)
     return group, sim
 

@@ -271,23 +271,15 @@ def build_losses(cfg, ctx: LossBuildContext) -> WeightedLoss:
     return WeightedLoss(terms)
 
 
-def motion_prior_limits(prior: Any, names: list[str]) -> list[str]:
-    """Warnings for parameters the embedded motion prior cannot read from words.
+def prior_limits(prior: Any, names: list[str]) -> list[str]:
+    """The warnings of the optimised parameters ``names`` (``PARAM`` or ``OBJECT.PARAM``)
+    that ``prior`` declares it cannot read from words (``VideoPrior.unreadable``), once
+    per parameter."""
+    from motionphysics.io.object_params import SEP
 
-    Every sand clip it learnt from is captioned "crumbles" whatever the friction angle,
-    so "a tall, steep heap" and "spreads out flat" are the same motion to it: the
-    friction angle moves the same way (a little) for both (BENCHMARKS.md, the model
-    card). ``names``: the optimised parameter names (``theta_fric`` or ``OBJ.theta_fric``)."""
-    if getattr(prior, "observes", None) != "states" or type(prior).__name__ != "MotionPrior":
-        return []
-    if not any(n.split(".")[-1] == "theta_fric" for n in names):
-        return []
-    return [
-        "motion prior: it cannot tell a steep heap of grains from a flat spread (every sand "
-        "clip it learnt from is 'crumbles'), so the words do not set the friction angle: "
-        "it stays near its start; give material.theta_fric (20-50 degrees; steeper heaps "
-        "higher) to choose it"
-    ]
+    unreadable = getattr(prior, "unreadable", {})
+    params = dict.fromkeys(n.rpartition(SEP)[2] for n in names)
+    return [unreadable[p] for p in params if p in unreadable]
 
 
 def _boost_for_prior(cfg, prior):
@@ -487,11 +479,12 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     opt_cfg, boost_note = _boost_for_prior(cfg, prior)
     if boost_note:
         writer.observer.message("info", boost_note)
-    prior_limits = motion_prior_limits(prior, problem.theta_map.names)
-    for text in prior_limits:
+    limits = prior_limits(prior, problem.theta_map.names)
+    if limits:
         from motionphysics.assembly_material import warn
 
-        warn(text, writer.observer)
+        for text in limits:
+            warn(text, writer.observer)
     result = optimize(
         problem,
         opt_cfg,
@@ -571,7 +564,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
         "boost": opt_cfg.boost,
         "boost_requested": cfg.optimize.boost,
         "boost_note": boost_note,
-        "prior_limits": prior_limits,
+        "prior_limits": limits,
         "optimised": list(problem.theta_map.names),
         "substeps_changes": [list(c) for c in getattr(problem.simulator, "changes", [])],
     }

@@ -145,6 +145,10 @@ class VideoPrior(ABC):
     them (``optimize.losses[].*`` and ``--guidance`` win); the paper's defaults when
     empty."""
 
+    unreadable: ClassVar[dict[str, str]] = {}
+    """Material parameters the prior cannot tell apart from words, each with the one line a
+    run that refines it warns with (``optimize.refine.prior_limits``); empty: none known."""
+
     name: ClassVar[str] = "prior"
     observes: ClassVar[Observes] = "frames"
     """What the prior looks at: ``frames`` (rendered, :meth:`encode`) or ``states`` (the

@@ -171,6 +171,18 @@ class MotionPrior(VideoPrior):
     object size (the paper's 10 % is for pixels; per-particle offsets of 10 % of the size
     would inflate the extents the features measure)."""
 
+    unreadable: ClassVar[dict[str, str]] = {
+        "theta_fric": (
+            "motion prior: it cannot tell a steep heap of grains from a flat spread (every "
+            "sand clip it learnt from is 'crumbles'), so the words do not set the friction "
+            "angle: it stays near its start; give material.theta_fric (20-50 degrees; "
+            "steeper heaps higher) to choose it"
+        )
+    }
+    """Every sand clip of the training data is captioned "crumbles" whatever its friction
+    angle, so "a tall, steep heap" and "spreads out flat" are one motion to this prior
+    (BENCHMARKS.md, the model card)."""
+
     name = "motion"
     observes = "states"
     prediction_type = "sample"
