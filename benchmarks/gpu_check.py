@@ -29,8 +29,10 @@ Which Python: ``--python``, else the first of ``.venv/bin/python``, ``python3`` 
 interpreter running this script whose torch sees a CUDA device; one line says which one
 and what it lacks. The GPU machine has no internet: packages its Python lacks (warp,
 diffusers, gsplat, pydantic) travel as a wheel pack made here with ``--pack``, in chunks
-that each fit one device call (see :func:`make_pack`); the check installs a complete
-pack into ``.gpu_pack/site`` before it starts.
+that each fit one device call (see :func:`make_pack`): every call but the last copies its
+chunk to ``~/.gpu_pack_keep`` (the device machine keeps that while warm, not an earlier
+call's carried files), and the check installs a complete pack into ``.gpu_pack/site``
+before it starts.
 
 Only the standard library is imported at module level: this file also runs under a
 Python that has none of the project's dependencies.
@@ -70,6 +72,10 @@ PAPER_ITERATION_S = 28.0  # the paper: one iteration, CogVideoX-5b, one A100 80 
 STATUSES = ("ok", "failed", "timeout", "skipped")
 PACK_DIR = ROOT / ".gpu_pack"
 DEVICE_CARRY_MIB = 64  # what one device call may carry, working tree included
+# Where a device call puts its chunk for the next call: measured on 2026-12-04, the device
+# machine drops a chunk carried by an earlier call from the repository copy (even while
+# warm), but keeps files outside it. ``install_pack`` reads chunks from both places.
+PACK_KEEP = Path(os.environ.get("MOTIONPHYSICS_GPU_PACK_KEEP", "~/.gpu_pack_keep")).expanduser()
 GSPLAT_VERSION = "1.5.3"
 # What the GPU machine's Python (3.12, CUDA torch, no internet) lacks, pinned like
 # pyproject.toml and .venv (tests/test_gpu_check.py checks they agree).
@@ -568,11 +574,16 @@ def make_pack(chunk_mib: float | None = None, minilm: bool = True, out=print) ->
         f"gpu-check --pack: {len(manifest['wheels'])} wheels, installed "
         f"{manifest['installed_bytes'] / 2**20:.0f} MiB, xz {manifest['bytes'] / 2**20:.0f} MiB "
         f"in {n} chunk(s) of <= {size / 2**20:.0f} MiB (working tree {tree / 2**20:.0f} MiB). "
-        "On the GPU machine, back to back (it keeps ignored files only while warm):"
+        "On the GPU machine, back to back (it keeps files outside the repository only "
+        "while warm, and drops an earlier call's carried chunk):"
     )
     for k in range(1, n + 1):
         last = k == n
-        command = "bash benchmarks/gpu_check.sh --out $OUT/gpu_check.json" if last else "true"
+        command = (
+            "bash benchmarks/gpu_check.sh --out $OUT/gpu_check.json"
+            if last
+            else f"mkdir -p ~/.gpu_pack_keep && cp -r .gpu_pack/{k} ~/.gpu_pack_keep/"
+        )
         out(f"  call {k}: carry ['.gpu_pack/{k}'], command: {command}")
     return manifest
 
@@ -667,29 +678,42 @@ def _exclude_from_git(pattern: str) -> None:
         p.write_text(text + ("" if text.endswith("\n") or not text else "\n") + pattern + "\n")
 
 
-def install_pack(python: str, env: dict[str, str], folder: Path = PACK_DIR) -> dict:
-    """Unpack a complete pack in ``folder`` into ``folder/site`` (once per pack).
+def install_pack(
+    python: str, env: dict[str, str], folder: Path = PACK_DIR, keep: Path | None = None
+) -> dict:
+    """Unpack a complete pack, its chunks in ``folder`` or ``keep`` (default
+    :data:`PACK_KEEP`, where earlier device calls left theirs), into ``folder/site``
+    (once per pack). A chunk in ``folder`` names the pack; kept chunks of another pack
+    are ignored.
 
     ``python`` is the interpreter the parts run with; the pack was installed for
     :data:`PACK_PYTHON`, and another version is named in the status. Returns
     ``{"status": ..., "site": path or None}``; status ``none`` (no pack),
     ``incomplete: ...``, ``installed``, ``already installed`` or ``failed: ...``."""
-    manifests = {}
-    for m in sorted(folder.glob("*/MANIFEST.json")):
-        try:
-            data = json.loads(m.read_text())
-            manifests[int(data["index"])] = (data, m.parent / "chunk")
-        except (ValueError, KeyError, OSError):
-            continue
-    if not manifests:
+    keep = PACK_KEEP if keep is None else keep
+    found: list[tuple[dict, Path]] = []
+    for base in (folder, keep):
+        for m in sorted(base.glob("*/MANIFEST.json")):
+            try:
+                data = json.loads(m.read_text())
+                int(data["index"]), data["sha256"], int(data["chunks"])
+            except (ValueError, KeyError, TypeError, OSError):
+                continue
+            found.append((data, m.parent / "chunk"))
+    if not found:
         return {"status": "none", "site": None}
-    first = next(iter(manifests.values()))[0]
+    first = found[0][0]  # ``folder`` is searched first: the chunk carried now names the pack
     n, sha = int(first["chunks"]), first["sha256"]
-    absent = [k for k in range(1, n + 1) if k not in manifests or manifests[k][0]["sha256"] != sha]
+    manifests: dict[int, tuple[dict, Path]] = {}
+    for data, chunk in found:
+        if data["sha256"] == sha:
+            manifests.setdefault(int(data["index"]), (data, chunk))
+    absent = [k for k in range(1, n + 1) if k not in manifests]
     if absent:
         return {
             "status": f"incomplete: chunk(s) {', '.join(map(str, absent))} of {n} not here "
-            "(each device call carries one; see `gpu_check.py --pack`)",
+            f"nor in {keep} (each device call carries one and copies it there; see "
+            "`gpu_check.py --pack`)",
             "site": None,
         }
     if first.get("format") != "site.tar.xz":
@@ -881,6 +905,25 @@ def render_markdown(report: dict) -> str:
                 f"{_g(r.get('backward_speedup'))} | {_g(ag.get('max_dx_over_cell'))} | "
                 f"{_g(ag.get('grad_rel_diff_max'))} | {_g(ag.get('agree'))} |"
             )
+        profiled = [p for p in mpm if "top" in ((p.get("result") or {}).get("cuda_profile") or {})]
+        if profiled:
+            lines += [
+                "",
+                "Where CUDA's forward + backward time goes (`wp.timing_begin`, one run of the "
+                "agreement scene; GPU milliseconds summed by kernel, the largest three):",
+                "",
+                "| particles | GPU total [ms] | wall fwd [s] | wall bwd [s] | largest kernels [ms] |",
+                "|---:|---:|---:|---:|---|",
+            ]
+            for p in profiled:
+                prof = p["result"]["cuda_profile"]
+                top = "; ".join(
+                    f"{t['name']} {_g(t['ms'], '.3g')} (x{t['launches']})" for t in prof["top"][:3]
+                )
+                lines.append(
+                    f"| {p['result'].get('particles')} | {_g(prof['gpu_ms_total'], '.4g')} | "
+                    f"{_g(prof['wall_forward_s'])} | {_g(prof['wall_backward_s'])} | {_cell(top)} |"
+                )
     render = [
         p for p in parts if p.get("kind") == "render" and (p.get("result") or {}).get("cases")
     ]
@@ -1064,13 +1107,31 @@ def _mpm_summary(res: dict) -> dict:
     }
 
 
-def mpm_agreement(
-    particles: int, grid: int, substeps: int, seed: int = 0, devices=("cpu", "cuda")
+# The agreement scene's initial velocity: the benchmark's fall plus a shear and a
+# compression about the cube's centre [1/s], so the cube deforms from the first substep.
+# In the benchmark scene itself the cube falls undeformed for one frame (F = I), so the
+# gradients of E, nu and density are round-off of an exact zero and a relative
+# comparison of them says nothing (the 2026-12-04 H200 check read 0.6-1.1 from that).
+AGREEMENT_STRAIN_RATE = ((-4.0, 2.0, 0.0), (0.0, -4.0, 2.0), (2.0, 0.0, 4.0))
+
+
+def agreement_run(
+    particles: int,
+    grid: int,
+    substeps: int,
+    device: str,
+    seed: int = 0,
+    scale: dict | None = None,
+    backward: bool = True,
+    weights: str = "random",
 ) -> dict:
-    """One frame of ``substeps`` substeps and the full backward of a random linear loss
-    of the end positions, on ``devices[0]`` (the reference) and ``devices[1]``: the
-    largest position difference (in grid cells) and the relative L2 difference of each
-    parameter gradient and of the initial positions' adjoint."""
+    """One frame of ``substeps`` substeps of the deforming agreement scene on ``device``
+    and, with ``backward``, the full backward of the random linear loss
+    ``L = sum(w * x_end)`` (``w`` standard normal from ``seed``; with ``weights="radial"``
+    the initial offsets from the centre, a loss that sums the deformation coherently, for
+    finite differences in float32). ``scale`` multiplies
+    material arrays first (finite differences). Returns the end state, the loss, the
+    parameter gradients, the initial positions' adjoint and the seconds."""
     import numpy as np
 
     from motionphysics.runtime import init_warp
@@ -1078,38 +1139,59 @@ def mpm_agreement(
     from motionphysics.sim.rollout import Rollout
 
     wp = init_warp()
-    runs = []
-    for device in devices:
-        model, solver, x0 = build_scene(particles, grid, device, requires_grad=True)
-        try:
-            start = model.state(x0, INITIAL_VELOCITY)
-            rollout = Rollout(solver, substeps, substeps * DT)
+    model, solver, x0 = build_scene(particles, grid, device, requires_grad=backward)
+    try:
+        for name, factor in (scale or {}).items():
+            a = model.params[name]
+            a.assign(a.numpy() * np.float32(factor))
+        centre = x0.mean(axis=0)
+        rate = np.asarray(AGREEMENT_STRAIN_RATE, dtype=np.float32)
+        v = np.asarray(INITIAL_VELOCITY, dtype=np.float32) + (x0 - centre) @ rate.T
+        start = model.state(x0, v.astype(np.float32))
+        rollout = Rollout(solver, substeps, substeps * DT)
+        if weights == "radial":
+            w = (x0 - centre).astype(np.float32)
+        else:
             w = np.random.default_rng(seed).standard_normal((model.particle_count, 3))
-            t0 = time.perf_counter()
-            res = rollout.forward(start, 2, keep_checkpoints=True, check=False, record_tapes=True)
-            t1 = time.perf_counter()
+            w = w.astype(np.float32)
+        t0 = time.perf_counter()
+        res = rollout.forward(
+            start, 2, keep_checkpoints=backward, check=False, record_tapes=backward
+        )
+        t1 = time.perf_counter()
+        out = {
+            "device": device,
+            "x": res.xs[1],
+            "F": res.Fs[1],
+            "loss": float(np.sum(w.astype(np.float64) * res.xs[1])),
+            "forward_s": t1 - t0,
+        }
+        if backward:
             model.zero_grad()
-            adj0 = rollout.backward({1: {"x": w.astype(np.float32)}}, grad_mode="full")
+            adj0 = rollout.backward({1: {"x": w}}, grad_mode="full")
             wp.synchronize_device(device)
-            t2 = time.perf_counter()
-            runs.append(
-                {
-                    "device": device,
-                    "x": res.xs[1],
-                    "F": res.Fs[1],
-                    "adj_x0": adj0.x.numpy().copy(),
-                    "grads": {
-                        k: a.grad.numpy().copy()
-                        for k, a in model.params.items()
-                        if a.grad is not None
-                    },
-                    "forward_s": t1 - t0,
-                    "backward_s": t2 - t1,
-                }
-            )
-        finally:
-            solver.close()
-    c, g = runs
+            out["backward_s"] = time.perf_counter() - t1
+            out["adj_x0"] = adj0.x.numpy().copy()
+            out["grads"] = {
+                k: a.grad.numpy().copy() for k, a in model.params.items() if a.grad is not None
+            }
+        return out
+    finally:
+        solver.close()
+
+
+def mpm_agreement(
+    particles: int, grid: int, substeps: int, seed: int = 0, devices=("cpu", "cuda")
+) -> dict:
+    """The deforming agreement scene (``agreement_run``) on ``devices[0]`` (the reference)
+    and ``devices[1]``: the largest position difference (in grid cells) and the relative
+    L2 difference of each parameter gradient and of the initial positions' adjoint. A
+    gradient that is zero on the reference (a parameter the material does not use) is
+    compared by its absolute norm and not counted in the verdict's worst case when both
+    are exactly zero."""
+    import numpy as np
+
+    c, g = (agreement_run(particles, grid, substeps, d, seed) for d in devices)
 
     def rel(a, b):
         den = float(np.linalg.norm(a))
@@ -1117,20 +1199,49 @@ def mpm_agreement(
 
     grads = {k: rel(c["grads"][k], g["grads"][k]) for k in c["grads"] if k in g["grads"]}
     grads["x0"] = rel(c["adj_x0"], g["adj_x0"])
+    norms = {k: float(np.linalg.norm(v)) for k, v in c["grads"].items()}
     dx_cells = float(np.abs(g["x"] - c["x"]).max()) * grid
     worst = max(grads.values()) if grads else None
     return {
+        "scene": "deforming (AGREEMENT_STRAIN_RATE)",
         "max_dx_over_cell": dx_cells,
         "max_abs_dF": float(np.abs(g["F"] - c["F"]).max()),
+        "max_abs_F_minus_I": float(np.abs(c["F"] - np.eye(3, dtype=np.float32)).max()),
         "grad_rel_diff": grads,
         "grad_rel_diff_max": worst,
+        "grad_norm_reference": norms,
         "grads_finite": bool(all(np.isfinite(v).all() for v in g["grads"].values())),
         # float32 atomics add in another order on the GPU: round-off, not a different answer
         "agree": bool(dx_cells < 1e-2 and worst is not None and worst < 1e-2),
         "seconds": [
             {"device": r["device"], "forward": r["forward_s"], "backward": r["backward_s"]}
-            for r in runs
+            for r in (c, g)
         ],
+    }
+
+
+def cuda_backward_profile(particles: int, grid: int, substeps: int) -> dict:
+    """Per-kernel GPU time of one checkpointed forward + full backward of the agreement
+    scene on CUDA (``wp.timing_begin``, kernels and memory operations), summed by name:
+    where the CUDA backward's time goes. The 10 largest, and the total."""
+    import warp as wp
+
+    agreement_run(particles, grid, substeps, "cuda")  # warm-up: loads every kernel
+    wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+    run = agreement_run(particles, grid, substeps, "cuda")
+    results = wp.timing_end()
+    by_name: dict[str, list] = {}
+    for t in results:
+        e = by_name.setdefault(t.name, [0.0, 0])
+        e[0] += t.elapsed
+        e[1] += 1
+    total = sum(e[0] for e in by_name.values())
+    top = sorted(by_name.items(), key=lambda kv: -kv[1][0])[:10]
+    return {
+        "gpu_ms_total": total,
+        "wall_forward_s": run["forward_s"],
+        "wall_backward_s": run["backward_s"],
+        "top": [{"name": n, "ms": e[0], "launches": e[1]} for n, e in top],
     }
 
 
@@ -1151,6 +1262,11 @@ def part_mpm(
     r["cuda"] = _mpm_summary(cu)
     ctx.save(r)
     r["agreement"] = mpm_agreement(particles, grid, substeps)
+    ctx.save(r)
+    try:
+        r["cuda_profile"] = cuda_backward_profile(particles, grid, substeps)
+    except Exception as exc:  # a profile is a figure, not the check: say why it is absent
+        r["cuda_profile"] = {"error": f"{type(exc).__name__}: {exc}"}
     ctx.save(r)
     cpu = time_mpm(particles, grid, substeps, cpu_repeats, backward=True, device="cpu")
     r["cpu"] = _mpm_summary(cpu)

@@ -5,6 +5,7 @@ limits and failure records, with fake parts run through the real runner."""
 
 from __future__ import annotations
 
+import functools
 import importlib.metadata as md
 import importlib.util
 import json
@@ -18,6 +19,7 @@ import tomllib
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -570,15 +572,26 @@ def test_wheel_pack_in_chunks_unpacks_only_when_complete(tmp_path):
     manifest = gc.write_pack([whl], max(1, whl.stat().st_size // 2), pack)
     assert manifest["chunks"] >= 2
     env = gc.child_env(None)
-    assert gc.install_pack(sys.executable, env, tmp_path / "empty")["status"] == "none"
+    keep = tmp_path / "keep"
+    install = functools.partial(gc.install_pack, sys.executable, env, keep=keep)
+    assert install(tmp_path / "empty")["status"] == "none"
     # one call's chunk missing: nothing installed, and it says which
     moved = tmp_path / "moved"
     shutil.move(pack / "2", moved)
-    res = gc.install_pack(sys.executable, env, pack)
+    res = install(pack)
     assert res["site"] is None
     assert res["status"].startswith(f"incomplete: chunk(s) 2 of {manifest['chunks']}")
-    shutil.move(moved, pack / "2")
-    res = gc.install_pack(sys.executable, env, pack)
+    # the device machine drops an earlier call's carried chunk but keeps ~/.gpu_pack_keep:
+    # a chunk copied there counts, and a kept chunk of another pack does not
+    keep.mkdir()
+    other = keep / "2"
+    shutil.copytree(moved, other)
+    m = json.loads((other / "MANIFEST.json").read_text())
+    (other / "MANIFEST.json").write_text(json.dumps({**m, "sha256": "0" * 64}))
+    assert install(pack)["status"].startswith("incomplete: chunk(s) 2")
+    shutil.rmtree(other)
+    shutil.copytree(moved, keep / "2")
+    res = install(pack)
     assert manifest["format"] == "site.tar.xz"
     assert res["status"].startswith("installed")
     here = f"{sys.version_info[0]}.{sys.version_info[1]}"
@@ -586,11 +599,11 @@ def test_wheel_pack_in_chunks_unpacks_only_when_complete(tmp_path):
     assert ("running" in res["status"]) == (here != gc.PACK_PYTHON)
     assert (res["site"] / "gpucheckdemo" / "__init__.py").read_text() == "VALUE = 42\n"
     assert (res["site"] / "gpucheckdemo-0.1.dist-info" / "METADATA").exists()
-    assert gc.install_pack(sys.executable, env, pack)["status"] == "already installed"
+    assert install(pack)["status"] == "already installed"
     # a chunk that does not belong: the sha256 catches it
     (pack / "1" / "chunk").write_bytes(b"x" + (pack / "1" / "chunk").read_bytes()[1:])
     shutil.rmtree(pack / "site")
-    assert gc.install_pack(sys.executable, env, pack)["status"].startswith("failed: the chunks")
+    assert install(pack)["status"].startswith("failed: the chunks")
 
 
 # ------------------------------------------------------------------ real parts on a CPU
@@ -644,6 +657,31 @@ def test_mpm_agreement_of_a_run_with_itself_is_exact():
     assert a["max_dx_over_cell"] == 0.0 and a["grad_rel_diff_max"] == 0.0
     assert {"E", "nu", "x0"} <= set(a["grad_rel_diff"])
     assert [s["device"] for s in a["seconds"]] == ["cpu", "cpu"]
+
+
+def test_the_agreement_scene_deforms_so_its_material_gradients_are_signal():
+    """The CUDA-vs-CPU gradient comparison is only worth something if the gradients it
+    compares are not round-off of a zero: in the agreement scene the cube deforms in the
+    first frame (F departs from I), and the directional derivative of a loss along E (sum
+    of the per-particle dL/dE times E) matches a central difference of that loss under
+    E x (1 +- 5 %). The loss weighs the end positions by the initial offsets from the
+    centre, so the stiffness's effect adds up instead of averaging out under random
+    weights. Tolerance 3 %: the 5 % step's curvature error is O(h^2) = 2.5e-3, float32
+    round-off of the loss about 1 % of its difference."""
+    from motionphysics.sim.bench import MATERIAL
+
+    run = functools.partial(gc.agreement_run, 1000, 16, 50, "cpu", weights="radial")
+    a = run()
+    assert float(np.abs(a["F"] - np.eye(3, dtype=np.float32)).max()) > 1e-2
+    assert run(backward=False)["loss"] == a["loss"]  # taped and untaped: one simulation
+    directional = float(np.sum(a["grads"]["E"].astype(np.float64))) * MATERIAL["E"]
+    h = 5e-2
+    fd = (
+        run(scale={"E": 1 + h}, backward=False)["loss"]
+        - run(scale={"E": 1 - h}, backward=False)["loss"]
+    ) / (2 * h)
+    assert abs(fd) > 1e-4, fd
+    assert directional == pytest.approx(fd, rel=3e-2)
 
 
 def test_motion_prior_part_skips_with_a_line_until_the_cli_trains_it(tmp_path):
