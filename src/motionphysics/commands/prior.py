@@ -50,7 +50,13 @@ def _check_prior(args) -> None:
 
 
 def _data(args) -> int:
-    from motionphysics.priors.motion_data import HELD_OUT_SHAPES, TRAIN_SHAPES, generate
+    from motionphysics.errors import UserInputError
+    from motionphysics.priors.motion_data import (
+        HELD_OUT_SHAPES,
+        TRAIN_SHAPES,
+        generate,
+        shard_summary,
+    )
     from motionphysics.progress import Progress
 
     _check_prior(args)
@@ -74,7 +80,20 @@ def _data(args) -> int:
                 shapes=shapes,
                 on_shard=on_shard,
             )
-    print(f"{args.out}: {meta['clips']} clips (seed {meta['seed']}, shapes {', '.join(shapes)})")
+    held = shard_summary(args.out)
+    line = f"{args.out}: {held['clips']} clips (seed {meta['seed']}, shapes {', '.join(shapes)})"
+    if held["failed"]:
+        why, count = max(held["reasons"].items(), key=lambda kv: kv[1])
+        line += (
+            f"; {held['failed']} of {held['clips'] + held['failed']} failed to simulate "
+            f"and were left out (most often, {count}x: {why})"
+        )
+    print(line)
+    if held["clips"] == 0:
+        raise UserInputError(
+            f"{args.out}: no clip simulated, so there is nothing to train on "
+            f"(first failure: {next(iter(held['reasons']), 'none recorded')})"
+        )
     return 0
 
 

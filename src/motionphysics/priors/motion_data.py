@@ -509,6 +509,8 @@ def make_clip(seed: int, index: int, shapes: tuple[str, ...] = TRAIN_SHAPES) -> 
         spec = draw_motion_spec(seed, index, a, shapes)
         try:
             traj = simulate_clip(spec)
+        except (ImportError, MemoryError, KeyboardInterrupt):
+            raise  # a broken install or a full machine is not an unstable draw
         except Exception as err:  # an unstable draw is recorded and re-drawn, not fatal
             failures.append(f"{type(err).__name__}: {err}"[:200])
             continue
@@ -680,6 +682,20 @@ def run_shards(
                 if on_shard:
                     on_shard(done, n_shards, n)
     return meta
+
+
+def shard_summary(root: str | Path) -> dict[str, Any]:
+    """What the shards under ``root`` hold: ``{"clips": kept clips, "failed": clips whose
+    every attempt failed to simulate, "reasons": {first failure line: count}}``."""
+    clips, failed, reasons = 0, 0, {}
+    for f in sorted(Path(root).glob("shard-*[0-9].npz")):
+        with np.load(f) as z:
+            clips += len(json.loads(str(z["groups"])))
+            for c in json.loads(str(z["failed"])) if "failed" in z.files else []:
+                failed += 1
+                why = (c.get("failed") or ["no attempt recorded"])[0]
+                reasons[why] = reasons.get(why, 0) + 1
+    return {"clips": clips, "failed": failed, "reasons": reasons}
 
 
 def load_clips(root: str | Path, *, max_shards: int | None = None) -> dict[str, Any]:
