@@ -66,3 +66,51 @@ def test_prior_help_offers_only_the_motion_prior(capsys):
         main(["prior", "train", "--help"])
     out = capsys.readouterr().out
     assert "--prior {motion}" in out and "tiny" not in out
+
+
+def test_data_counts_the_clips_it_holds_and_names_why_the_others_failed(
+    tmp_path, capsys, monkeypatch
+):
+    """`prior data` reports the clips the shards hold, not the count asked: draws that
+    never simulate are left out and the line says how many and why; when none simulated
+    it stops with exit 2 (on a GPU machine without trimesh it printed "64 clips" for
+    shards that held none, and `prior train` then said only "the shards hold no clips")."""
+    from motionphysics.errors import SimulationError
+    from motionphysics.priors import motion_data
+
+    real = motion_data.simulate_clip
+
+    def unstable_for_clip_1(spec):
+        if spec.index == 1:
+            raise SimulationError("frame 3: velocity ran away")
+        return real(spec)
+
+    monkeypatch.setattr(motion_data, "simulate_clip", unstable_for_clip_1)
+    out_dir = tmp_path / "d"
+    rc, out, _ = _run(["--quiet", "prior", "data", str(out_dir), "--clips", "2"], capsys)
+    assert rc == 0
+    assert out.startswith(f"{out_dir}: 1 clips (seed 0")
+    assert "1 of 2 failed to simulate and were left out" in out
+    assert "SimulationError: frame 3: velocity ran away" in out
+
+    def never(spec):
+        raise SimulationError("frame 0: NaN")
+
+    monkeypatch.setattr(motion_data, "simulate_clip", never)
+    rc, _, err = _run(["--quiet", "prior", "data", str(tmp_path / "e"), "--clips", "1"], capsys)
+    assert rc == 2
+    (line,) = err.strip().splitlines()
+    assert "no clip simulated" in line and "SimulationError: frame 0: NaN" in line
+
+
+def test_data_lets_a_broken_install_through_instead_of_calling_it_an_unstable_draw(
+    tmp_path, capsys, monkeypatch
+):
+    from motionphysics.priors import motion_data
+
+    def no_trimesh(spec):
+        raise ModuleNotFoundError("No module named 'trimesh'")
+
+    monkeypatch.setattr(motion_data, "simulate_clip", no_trimesh)
+    with pytest.raises(ModuleNotFoundError, match="trimesh"):
+        main(["--quiet", "prior", "data", str(tmp_path / "d"), "--clips", "1"])
