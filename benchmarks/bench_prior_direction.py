@@ -100,6 +100,22 @@ PAIRS = {
         "down": "A {obj} of runny paint is dropped, flows and spreads out thin",
         "bar": 3.0,
     },
+    "foam": {
+        "param": "E",
+        "start": {
+            "class": "foam",
+            "density": 100,
+            # E / rho = 50 m^2/s^2: the foam deforms visibly when it lands (at 3e4 Pa it
+            # barely deformed, max shape change 1 %, and bounced: nothing to squash)
+            "E": 5.0e3,
+            "nu": 0.2,
+            "tau_Y": 1.0e5,
+            "eta": 0.5,
+        },
+        "up": "A firm foam {obj} is dropped and keeps its shape when it lands",
+        "down": "A soft, squishy foam {obj} is dropped and squashes flat",
+        "bar": 3.0,
+    },
     "metal": {
         "param": "tau_Y",
         "start": {"class": "metal", "density": 7800, "E": 2.0e11, "nu": 0.3, "tau_Y": 2.0e7},
