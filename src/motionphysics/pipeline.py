@@ -244,6 +244,12 @@ def run_pipeline(
                 material,
                 active=getattr(parts.last_rollout, "active", None),
             )
+            if initial_material is None and parts.objects is None and cfg.prompt:
+                # no refinement: the motion the prompt asks for beside the one simulated,
+                # so a run that does not do what its sentence says says so
+                motion = _plain_motion_record(cfg, material, (xs, vs), parts.sim_scene)
+                if motion is not None and writer.state.get("metrics") is not None:
+                    writer.state["metrics"]["motion"] = motion
         if cfg.export_ply:
             with writer.stage("export splats", total=frames) as st:
                 writer.export_splats(parts.sim_scene, xs, Fs, on_frame=st.advance)
@@ -280,6 +286,43 @@ def _motion_record(cfg: RunConfig, material, before, after, sim_scene) -> dict[s
         floor=floor,
     )
     return {**rec, "lines": motion_lines(rec)}
+
+
+def _plain_motion_record(cfg: RunConfig, material, traj, sim_scene) -> dict[str, Any] | None:
+    """For a run without refinement: the motion group the prompt asks for, the group of the
+    simulated trajectory and eval's motion adherence, with summary lines (None when the
+    prompt asks for no motion group the captions know)."""
+    from motionphysics.config import config_to_dict
+    from motionphysics.evaluation.evaluate import floor_from_config
+    from motionphysics.language.captions import prompt_motion_group
+    from motionphysics.metrics.physical import up_axis
+    from motionphysics.priors.motion_summary import (
+        adherence_of,
+        plain_motion_lines,
+        trajectory_motion,
+    )
+
+    asked, similarity = prompt_motion_group(cfg.prompt or "")
+    if asked is None:
+        return None
+
+    def arr(a):
+        return np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
+
+    x, v = (arr(a) for a in traj)
+    t = np.arange(x.shape[0]) * float(cfg.sim.frame_dt)
+    gravity = np.asarray(cfg.sim.gravity, dtype=np.float64)
+    mass = arr(sim_scene.volumes) * arr(material.density)
+    floor = floor_from_config(config_to_dict(cfg), up_axis(gravity), x[0])
+    rec: dict[str, Any] = {
+        "asked": asked,
+        "asked_similarity": float(similarity),
+        "simulated": trajectory_motion(x, v, t, material.cls),
+    }
+    rec["simulated"]["adherence"] = adherence_of(
+        cfg.prompt or "", x, v, t, mass=mass, gravity=gravity, floor=floor
+    )
+    return {**rec, "lines": plain_motion_lines(rec)}
 
 
 def wants_refinement(cfg: RunConfig) -> bool:

@@ -192,6 +192,12 @@ def render_report(
             out.append(f"<video src='{e(video)}' controls loop autoplay muted playsinline></video>")
         else:
             out.append(f"<p class='muted'>No video ({e(video)} missing).</p>")
+    # a run without refinement: the motion the prompt asks for beside the one simulated
+    # (a refined run shows it in the optimisation section, before and after)
+    plain = {} if params.get("optimise") else (params.get("metrics") or {}).get("motion") or {}
+    if plain.get("lines"):
+        out.append("<h3>Motion asked for and simulated</h3>")
+        out.append("<pre>" + e("\n".join(plain["lines"])) + "</pre>")
 
     if plots:
         out.append("<h2>Plots</h2><div class='plots'>")

@@ -949,6 +949,8 @@ def summary_text(result: RunResult) -> str:
             f"{opt.get('grad_mode', '?')})"
         )
         lines += list((opt.get("motion") or {}).get("lines") or [])
+    else:  # a run without refinement: the motion asked beside the one simulated
+        lines += list(((p.get("metrics") or {}).get("motion") or {}).get("lines") or [])
     m = result.metrics or {}
     if m:
         lines.append(
