@@ -25,8 +25,9 @@ recompute it for any finished run:
 - the centroid height above the floor (``floor``: the run's ground collider when the
   caller knows it, else the lowest point any particle reached) and its final / initial
   ratio;
-- centroid height per frame; the rebound ratio (rise of the centroid after its lowest
-  point over the fall before it: ~0 for a splat or a dent, larger for a bounce); and
+- centroid height per frame; the rebound ratio (rise of the centroid after the first
+  impact over the fall before it: ~0 for a splat or a dent, larger for a bounce; see
+  :func:`first_impact`); and
   the dominant oscillation frequency and damping of the object's extent signal; the
   frequency is reported only when it is resolved (at most a quarter of the frame rate
   and at least two periods in the clip), otherwise null with ``frequency_reason``.
@@ -263,6 +264,35 @@ def _spread(p: np.ndarray, axis: np.ndarray, w: np.ndarray) -> float:
     return float(np.sqrt((w * (d * d).sum(1)).sum() / w.sum()))
 
 
+def first_impact(com_h) -> tuple[int, float, float]:
+    """``(frame, fall, rise)`` of the first impact of a centroid height series ``com_h``
+    [T] (m): the first local minimum that is at least half as deep below the highest
+    point before it as the deepest point of the clip is, the fall from that highest point
+    and the largest rise after it.
+
+    The first impact, not the lowest point of the clip: an object that bounces and then
+    settles lower (a toy that lands on a wing, leaps 10 cm and comes to rest on its side)
+    has its lowest point after the bounce, and a rise measured from there reads the bounce
+    as none (the demo's bird: 0.04 of the fall against 0.33 from its first impact). The
+    depth rule skips a shallow dip in the fall (none under gravity alone; a push, a
+    wobble of the shape) and makes a series that only descends end at its last frame."""
+    h = np.asarray(com_h, dtype=np.float64)
+    T = h.shape[0]
+    if T < 2:
+        return 0, 0.0, 0.0
+    peak = np.maximum.accumulate(h)
+    depth = peak - h  # how far below the highest point so far
+    need = 0.5 * float(depth.max())
+    k = int(np.argmax(depth))  # the deepest frame: the fallback
+    for i in range(1, T - 1):
+        if h[i] < h[i - 1] and h[i] <= h[i + 1] and depth[i] >= need and depth[i] > 0:
+            k = i
+            break
+    fall = float(peak[k] - h[k])
+    rise = float(h[k:].max() - h[k]) if k < T - 1 else 0.0
+    return k, fall, rise
+
+
 def physical_metrics(
     traj: dict[str, np.ndarray],
     material: dict[str, Any] | None = None,
@@ -315,12 +345,7 @@ def physical_metrics(
     s0 = max(spreads[0], 1e-9)
     dt = float(t[1] - t[0]) if T > 1 else 1.0
 
-    # Rebound: how far the centroid rises again after its lowest point, relative to the
-    # fall before it (0: stays down / no fall; ~1: an ideal bounce back to the start).
-    k = int(np.argmin(com_h))
-    fall = float(com_h[0] - com_h[k])
-    rise = float(com_h[k:].max() - com_h[k]) if k < T - 1 else 0.0
-    # the lowest point must be a real contact, not the last frame of a fall
+    k, fall, rise = first_impact(com_h)
     rebound = rise / fall if fall > 1e-6 else 0.0
 
     out: dict[str, Any] = {
