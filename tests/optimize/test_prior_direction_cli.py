@@ -11,7 +11,9 @@ stiffer than the soft one, each moved its own way from the start."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -19,28 +21,21 @@ import yaml
 
 from motionphysics.cli import main
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / "donut.ply"
+ROOT = Path(__file__).resolve().parents[2]
+REAL = ROOT.parent / "shared" / "data" / "real" / "donut.ply"
 
-PAIRS = {
-    "elastic": (
-        "E",
-        {"class": "elastic", "density": 1100, "E": 1.0e5, "nu": 0.3},
-        "A stiff {obj} is dropped, stays rigid and bounces high off the ground",
-        "A soft, wobbly {obj} is dropped, squashes and wobbles like jelly",
-    ),
-    "newtonian": (
-        "mu",
-        {"class": "newtonian", "density": 1000, "mu": 1.0, "kappa": 2.2e9},
-        "Thick honey shaped like a {obj} oozes slowly over the ground",
-        "Thin runny water shaped like a {obj} splashes and spreads thin",
-    ),
-    "foam": (
-        "E",
-        {"class": "foam", "density": 100, "E": 5.0e3, "nu": 0.2, "tau_Y": 1.0e5, "eta": 0.5},
-        "A firm foam {obj} is dropped and keeps its shape when it lands",
-        "A soft, squishy foam {obj} is dropped and squashes flat",
-    ),
-}
+
+def _bench():
+    """benchmarks/bench_prior_direction.py: its pairs and its config, so the test and the
+    benchmark run the same prompts from the same starts."""
+    spec = importlib.util.spec_from_file_location(
+        "bench_prior_direction", ROOT / "benchmarks" / "bench_prior_direction.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["bench_prior_direction"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
 
 SCENES = {
     "sphere": ({"source": "builtin:sphere"}, "ball"),
@@ -48,25 +43,14 @@ SCENES = {
 }
 
 
-def _config(scene: dict, material: dict, prompt: str) -> dict:
-    return {
-        "scene": {**scene, "scale": 0.3, "translate": [0, 0, 0.3], "max_particles": 500},
-        "prompt": prompt,
-        "material": dict(material),
-        "sim": {"grid": 20, "frames": 16, "frame_dt": 0.05, "substeps": "auto"},
-        "boundary_conditions": [
-            {
-                "type": "surface_collider",
-                "point": [0, 0, 0],
-                "normal": [0, 0, 1],
-                "mode": "frictional",
-                "friction": 0.5,
-            },
-            {"type": "bounding_box"},
-        ],
-        "camera": {"width": 32, "height": 32},
-        "optimize": {"prior": "motion", "loss": "lmd", "iterations": 6, "seed": 0},
-    }
+def _config(bench, cls: str, scene: dict, prompt: str) -> dict:
+    """The benchmark's config for ``cls`` (every parameter refined), made small."""
+    scene = {**scene, "scale": 0.3, "translate": [0, 0, 0.3], "max_particles": 500}
+    loss = {"type": "lmd"}
+    cfg = bench._config(scene, bench.PAIRS[cls], prompt, loss, 6, 0, "motion", True)
+    cfg["sim"]["grid"] = 20
+    cfg["camera"] = {"width": 32, "height": 32}
+    return cfg
 
 
 @pytest.mark.slow
@@ -77,12 +61,14 @@ def _config(scene: dict, material: dict, prompt: str) -> dict:
 def test_opposite_prompts_move_the_parameter_opposite_ways(tmp_path, cls, scene):
     if scene == "donut" and not REAL.is_file():
         pytest.skip(f"real capture {REAL} not present")
-    name, start, up, down = PAIRS[cls]
+    bench = _bench()
+    pair = bench.PAIRS[cls]
+    name, start = pair["param"], pair["start"]
     source, noun = SCENES[scene]
     ends = {}
-    for side, prompt in (("up", up), ("down", down)):
+    for side in ("up", "down"):
         cfg = tmp_path / f"{side}.yaml"
-        cfg.write_text(yaml.safe_dump(_config(source, start, prompt.format(obj=noun))))
+        cfg.write_text(yaml.safe_dump(_config(bench, cls, source, pair[side].format(obj=noun))))
         out = tmp_path / side
         assert main(["--quiet", "run", str(cfg), "--out", str(out)]) == 0
         params = json.loads((out / "params.json").read_text())
