@@ -66,3 +66,35 @@ def test_the_record_puts_the_asked_motion_beside_before_and_after():
     none = motion_record("A rubber ball", "elastic", t, (x0, v0), (x1, v1))
     assert none["asked"] is None
     assert "names none" in motion_lines(none)[0]
+
+
+@pytest.mark.parametrize(
+    ("group", "score", "verdict", "advice"),
+    [
+        ("bounces_high", 0.30, "as asked", False),
+        ("barely_bounces", 0.74, "close to what was asked", False),
+        (None, 0.54, "partly as asked: between motion groups", False),
+        ("keeps_shape", 0.05, "not as asked", True),
+        ("keeps_shape", None, "not as asked", True),
+    ],
+)
+def test_a_plain_runs_verdict(group, score, verdict, advice):
+    """The verdict of a run without refinement: the caption group first, eval's adherence
+    next; "not as asked" only when another named group was simulated and the adherence is
+    under NEAR_ADHERENCE, and only then the line that says what moves it."""
+    from motionphysics.priors.motion_summary import plain_motion_lines
+
+    measures = {"rebound": 0.33, "max_deform": 0.006, "deform": 0.001, "max_spread": 1.03}
+    rec = {
+        "asked": "bounces_high",
+        "simulated": {
+            "group": group,
+            "measures": {**measures, "wobble": 0.0},
+            "adherence": {"score": score},
+        },
+    }
+    lines = plain_motion_lines(rec)
+    assert lines[0] == "motion asked: bounces high (the prompt's motion words)"
+    assert lines[1].endswith(f"({verdict})")
+    assert ("--prior motion" in lines[-1]) == advice
+    assert any("adherence" in x for x in lines) == (score is not None)

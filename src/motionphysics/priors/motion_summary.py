@@ -43,8 +43,8 @@ to what was asked when eval's motion adherence is at least this. Examples:
 - a lump of clay that ended at 0.43 of its height, spread x1.6 and still creeping reads as
   "oozes" to the rules but scores 0.67 on "squashes flat": close;
 - a rubber ball with a rebound of 0.23 scores 0.74 on "bounces back": close;
-- the demo's bird, rebound 0.04, scores 0.54 on "bounces back": a person sees it stop on
-  the floor, not close;
+- the demo's bird (rebound 0.33 from its first impact, between the caption rules'
+  groups) scores 0.54 on "bounces back": "partly as asked", no claim either way;
 - a foam block that bounced and kept its shape scores 0.03 on "squashes flat"."""
 
 
@@ -128,12 +128,17 @@ def plain_motion_lines(rec: dict[str, Any]) -> list[str]:
     simulated from the estimate; when they differ, what moves it toward the words."""
     asked, sim = rec["asked"], rec["simulated"]
     score = (sim.get("adherence") or {}).get("score")
+    near = score is not None and score >= NEAR_ADHERENCE
     if sim["group"] == asked:
         ok, verdict = True, "as asked"
-    elif score is not None and score >= NEAR_ADHERENCE:
+    elif near:
         # the caption rules read it otherwise (or between groups), eval's adherence to
         # the prompt's own words says it is close: what the prompt's reader sees
         ok, verdict = True, "close to what was asked"
+    elif sim["group"] is None:
+        # between two groups (a rebound of 0.33 is neither a high bounce nor a small one
+        # by the caption rules) and eval's adherence is not high: no claim either way
+        ok, verdict = True, "partly as asked: between motion groups"
     else:
         ok, verdict = False, "not as asked"
     lines = [
