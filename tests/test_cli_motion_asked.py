@@ -77,3 +77,38 @@ def test_quiet_prints_nothing_but_params_keep_the_record(tmp_path, capsys):
     assert main(["--quiet", "run", str(cfg), "--out", str(out)]) == 0
     assert capsys.readouterr().out == ""
     assert json.loads((out / "params.json").read_text())["metrics"]["motion"]["lines"]
+
+
+def test_a_fluid_that_collapses_and_splashes_is_asked_to_splash(tmp_path, capsys):
+    """ "Crumbles" is the granular word for a collapse; water cannot show it, so the prompt
+    is read without it: the splash is what was asked (it was read as crumbling, and a
+    splashing dam break was called "not as asked")."""
+    data = _config("A block of water collapses and splashes across the floor")
+    data["material"] = {"class": "newtonian", "density": 1000, "mu": 0.001, "kappa": 2.2e9}
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert main(["--quiet", "run", str(cfg), "--out", str(out)]) == 0
+    motion = json.loads((out / "params.json").read_text())["metrics"]["motion"]
+    assert motion["asked"] == "splashes"
+
+
+def test_a_weak_second_reading_is_no_reading(tmp_path, capsys):
+    """A paste that "piles up" is nearest "crumbles", which a paste cannot show; without
+    it the nearest group is a weak match (a bounce, 0.50): no motion is claimed."""
+    data = _config("Toothpaste is squeezed out, falls onto the surface and piles up.")
+    data["material"] = {
+        "class": "non_newtonian",
+        "density": 1200,
+        "mu": 1.0,
+        "kappa": 2.0e9,
+        "tau_Y": 100.0,
+        "eta": 0.5,
+        "n": 0.6,
+    }
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert main(["run", str(cfg), "--out", str(out)]) == 0
+    assert "motion asked:" not in capsys.readouterr().out
+    assert "motion" not in json.loads((out / "params.json").read_text())["metrics"]

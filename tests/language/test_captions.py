@@ -269,3 +269,13 @@ def test_reading_phrasings_never_caption_a_training_clip():
     extras = [p for g in GROUPS for p in READING_EXTRA[g]]
     assert len(set(extras)) == len(extras) and not captions & set(extras)
     assert not captions & set(READING_NEUTRAL)
+
+
+def test_a_reading_can_leave_out_a_group_the_material_cannot_show():
+    from motionphysics.language.captions import prompt_motion_group
+
+    prompt = "A block of water collapses and splashes across the floor of a tank."
+    assert prompt_motion_group(prompt)[0] == "crumbles"
+    group, sim = prompt_motion_group(prompt, exclude=("crumbles",))
+    assert group == "splashes" and sim > 0.6
+    assert prompt_motion_group("A column of sand collapses into a heap.", ("crumbles",))[0] is None

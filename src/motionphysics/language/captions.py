@@ -20,7 +20,7 @@ This module must not import torch or the simulator.
 from __future__ import annotations
 
 import functools
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -467,19 +467,24 @@ def _split(prompt: str) -> tuple[str, str]:
     return "the object", ""
 
 
-def prompt_motion_group(prompt: str) -> tuple[str | None, float]:
+def prompt_motion_group(prompt: str, exclude: Collection[str] = ()) -> tuple[str | None, float]:
     """The motion group whose phrasings (training, held-out and :data:`READING_EXTRA`) a
     clause of the prompt's predicate (what it says the thing does; clauses split at commas,
     "and", "then", "but", "while") is closest to, and that similarity. A clause counts
     only when its closest group is at least MIN_MOTION_SIMILARITY and closer than every
     :data:`READING_NEUTRAL` phrase ("is dropped", "hits the ground"). None when no clause
-    counts, or the prompt has no verb."""
-    group, sim, _ = prompt_motion_reading(prompt)
+    counts, or the prompt has no verb. Groups in ``exclude`` are not candidates (a motion
+    the material cannot show, e.g. "crumbles", the granular word, for a fluid)."""
+    group, sim, _ = prompt_motion_reading(prompt, exclude=exclude)
     return group, sim
 
 
 def prompt_motion_reading(
-    prompt: str, *, held_out_anchors: bool = True, whole_if_no_verb: bool = False
+    prompt: str,
+    *,
+    held_out_anchors: bool = True,
+    whole_if_no_verb: bool = False,
+    exclude: Collection[str] = (),
 ) -> tuple[str | None, float, str]:
     """:func:`prompt_motion_group` with the clause that decided: ``(group, similarity,
     clause)``. ``held_out_anchors=False`` compares with the training phrasings only (what
@@ -507,7 +512,8 @@ def prompt_motion_reading(
         row = sims[c].tolist()
         best: dict[str, float] = {}
         for (g, _), v in zip(phrases, row[: len(phrases)], strict=True):
-            best[g] = max(best.get(g, -1.0), v)
+            if g not in exclude:
+                best[g] = max(best.get(g, -1.0), v)
         group = max(best, key=best.get)
         if best[group] >= MIN_MOTION_SIMILARITY and best[group] > max(row[len(phrases) :]):
             if best[group] > found[1]:
