@@ -256,86 +256,57 @@ def run_pipeline(
         return writer.finish()
 
 
+def _eval_inputs(cfg: RunConfig, material, x, sim_scene) -> dict[str, Any]:
+    """What eval scores a run's motion adherence with (the same as ``metrics.json``): the
+    frame times ``t`` [T] s, particle ``mass`` [P], ``gravity`` [3] and the ``floor``
+    height along up (None: the lowest point reached), for positions ``x`` [T, P, 3]."""
+    from motionphysics.config import config_to_dict
+    from motionphysics.evaluation.evaluate import floor_from_config
+    from motionphysics.metrics.physical import up_axis
+
+    gravity = np.asarray(cfg.sim.gravity, dtype=np.float64)
+    return {
+        "t": np.arange(x.shape[0]) * float(cfg.sim.frame_dt),
+        "mass": _f64(sim_scene.volumes) * _f64(material.density),
+        "gravity": gravity,
+        "floor": floor_from_config(config_to_dict(cfg), up_axis(gravity), x[0]),
+    }
+
+
+def _f64(a) -> np.ndarray:
+    return np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
+
+
 def _motion_record(cfg: RunConfig, material, before, after, sim_scene) -> dict[str, Any]:
     """The motion group the prompt asks for and those of the initial and the refined
     trajectory (:mod:`motionphysics.priors.motion_summary`), each with eval's motion
     adherence (the same masses, gravity and floor as ``metrics.json``), with its summary
     lines."""
-    from motionphysics.config import config_to_dict
-    from motionphysics.evaluation.evaluate import floor_from_config
-    from motionphysics.metrics.physical import up_axis
     from motionphysics.priors.motion_summary import motion_lines, motion_record
 
-    def arr(a):
-        return np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
-
     (x0, v0), (x1, v1) = before, after
-    x0, v0, x1, v1 = arr(x0), arr(v0), arr(x1), arr(v1)
-    t = np.arange(x1.shape[0]) * float(cfg.sim.frame_dt)
-    gravity = np.asarray(cfg.sim.gravity, dtype=np.float64)
-    mass = arr(sim_scene.volumes) * arr(material.density)
-    floor = floor_from_config(config_to_dict(cfg), up_axis(gravity), x1[0])
+    x0, v0, x1, v1 = _f64(x0), _f64(v0), _f64(x1), _f64(v1)
+    ev = _eval_inputs(cfg, material, x1, sim_scene)
     rec = motion_record(
         cfg.prompt or "",
         material.cls,
-        t,
+        ev.pop("t"),
         (x0, v0),
         (x1, v1),
-        mass=mass,
-        gravity=gravity,
-        floor=floor,
+        **ev,
     )
     return {**rec, "lines": motion_lines(rec)}
 
 
-SECOND_READING_SIMILARITY = 0.6
-"""How close a prompt's clause must be to a motion group's phrasings for the reading
-without the group the material cannot show to count (see :func:`_plain_motion_record`)."""
-
-
 def _plain_motion_record(cfg: RunConfig, material, traj, sim_scene) -> dict[str, Any] | None:
-    """For a run without refinement: the motion group the prompt asks for, the group of the
-    simulated trajectory and eval's motion adherence, with summary lines (None when the
-    prompt asks for no motion group the captions know)."""
-    from motionphysics.config import config_to_dict
-    from motionphysics.evaluation.evaluate import floor_from_config
-    from motionphysics.language.captions import prompt_motion_group
-    from motionphysics.metrics.physical import up_axis
-    from motionphysics.priors.motion_summary import (
-        adherence_of,
-        plain_motion_lines,
-        trajectory_motion,
-    )
+    """For a run without refinement: the motion the prompt asks for (read for what this
+    material can show), the motion simulated and eval's motion adherence, with summary
+    lines (None when the prompt asks for no motion the captions know)."""
+    from motionphysics.priors.motion_summary import plain_motion_record
 
-    asked, similarity = prompt_motion_group(cfg.prompt or "")
-    if asked == "crumbles" and material.cls != "sand":
-        # "crumbles" is the granular word for a collapse: a material that is not sand
-        # cannot show it (captions.motion_group). Read the prompt without it ("a block of
-        # water collapses and splashes" asks for a splash, 0.76); a weak second reading is
-        # no reading ("toothpaste ... piles up" is nearest "bounces high" at 0.50)
-        asked, similarity = prompt_motion_group(cfg.prompt or "", exclude=("crumbles",))
-        if similarity < SECOND_READING_SIMILARITY:
-            asked = None
-    if asked is None:
-        return None
-
-    def arr(a):
-        return np.asarray(a.detach().cpu() if hasattr(a, "detach") else a, dtype=np.float64)
-
-    x, v = (arr(a) for a in traj)
-    t = np.arange(x.shape[0]) * float(cfg.sim.frame_dt)
-    gravity = np.asarray(cfg.sim.gravity, dtype=np.float64)
-    mass = arr(sim_scene.volumes) * arr(material.density)
-    floor = floor_from_config(config_to_dict(cfg), up_axis(gravity), x[0])
-    rec: dict[str, Any] = {
-        "asked": asked,
-        "asked_similarity": float(similarity),
-        "simulated": trajectory_motion(x, v, t, material.cls),
-    }
-    rec["simulated"]["adherence"] = adherence_of(
-        cfg.prompt or "", x, v, t, mass=mass, gravity=gravity, floor=floor
-    )
-    return {**rec, "lines": plain_motion_lines(rec)}
+    x, v = (_f64(a) for a in traj)
+    ev = _eval_inputs(cfg, material, x, sim_scene)
+    return plain_motion_record(cfg.prompt or "", material.cls, ev.pop("t"), x, v, **ev)
 
 
 def wants_refinement(cfg: RunConfig) -> bool:

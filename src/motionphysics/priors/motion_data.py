@@ -684,11 +684,17 @@ def run_shards(
     return meta
 
 
+def shard_files(root: str | Path) -> list[Path]:
+    """The finished shards under ``root`` in shard order (not the ``.tmp`` of one being
+    written)."""
+    return sorted(Path(root).glob("shard-*[0-9].npz"))
+
+
 def shard_summary(root: str | Path) -> dict[str, Any]:
     """What the shards under ``root`` hold: ``{"clips": kept clips, "failed": clips whose
     every attempt failed to simulate, "reasons": {first failure line: count}}``."""
     clips, failed, reasons = 0, 0, {}
-    for f in sorted(Path(root).glob("shard-*[0-9].npz")):
+    for f in shard_files(root):
         with np.load(f) as z:
             clips += len(json.loads(str(z["groups"])))
             for c in json.loads(str(z["failed"])) if "failed" in z.files else []:
@@ -704,7 +710,7 @@ def load_clips(root: str | Path, *, max_shards: int | None = None) -> dict[str, 
     from motionphysics.errors import UserInputError
 
     root = Path(root)
-    files = sorted(root.glob("shard-*[0-9].npz"))
+    files = shard_files(root)
     if max_shards is not None:
         files = files[:max_shards]
     if not files:

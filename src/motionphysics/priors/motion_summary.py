@@ -27,7 +27,9 @@ __all__ = [
     "adherence_of",
     "motion_lines",
     "motion_record",
+    "asked_motion",
     "plain_motion_lines",
+    "plain_motion_record",
     "trajectory_motion",
 ]
 
@@ -123,6 +125,47 @@ def _said(r: dict[str, Any]) -> str:
     )
 
 
+SECOND_READING_SIMILARITY = 0.6
+"""How close a prompt's clause must be to a motion group's phrasings for the reading
+without a group the material cannot show to count (:func:`asked_motion`)."""
+
+
+def asked_motion(prompt: str, cls: str) -> tuple[str | None, float]:
+    """The motion group ``prompt`` asks for, read for what material class ``cls`` can show,
+    and its similarity. "crumbles" is the granular word for a collapse: a material that is
+    not sand cannot show it (``captions.motion_group``), so its prompt is read without it
+    ("a block of water collapses and splashes" asks for a splash, 0.76); a weak second
+    reading is no reading ("toothpaste ... piles up" is nearest "bounces high" at 0.50)."""
+    from motionphysics.language.captions import prompt_motion_group
+
+    asked, similarity = prompt_motion_group(prompt)
+    if asked == "crumbles" and cls != "sand":
+        asked, similarity = prompt_motion_group(prompt, exclude=("crumbles",))
+        if similarity < SECOND_READING_SIMILARITY:
+            asked = None
+    return asked, similarity
+
+
+def plain_motion_record(
+    prompt: str, cls: str, t, x, v, *, mass=None, gravity=None, floor: float | None = None
+) -> dict[str, Any] | None:
+    """The motion asked for (:func:`asked_motion`) and the motion of the trajectory
+    ``x``/``v`` at times ``t`` of a run without refinement, with eval's adherence and the
+    summary lines (:func:`plain_motion_lines`); None when the prompt asks for no motion."""
+    asked, similarity = asked_motion(prompt, cls)
+    if asked is None:
+        return None
+    rec: dict[str, Any] = {
+        "asked": asked,
+        "asked_similarity": float(similarity),
+        "simulated": trajectory_motion(x, v, t, cls),
+    }
+    rec["simulated"]["adherence"] = adherence_of(
+        prompt, x, v, t, mass=mass, gravity=gravity, floor=floor
+    )
+    return {**rec, "lines": plain_motion_lines(rec)}
+
+
 def plain_motion_lines(rec: dict[str, Any]) -> list[str]:
     """Summary lines of a run without refinement: the motion asked for and the motion
     simulated from the estimate; when they differ, what moves it toward the words."""
@@ -158,7 +201,6 @@ def plain_motion_lines(rec: dict[str, Any]) -> list[str]:
 
 def motion_lines(rec: dict[str, Any]) -> list[str]:
     """Summary lines: the motion asked for, and the motion before and after refinement."""
-    said = _said
 
     asked = rec.get("asked")
     ask = (
@@ -167,12 +209,12 @@ def motion_lines(rec: dict[str, Any]) -> list[str]:
         else "no motion group the motion prior knows (the prompt names none)"
     )
     lines = [f"motion asked: {ask}"]
-    lines.append(f"  before refinement: {said(rec['before'])}")
+    lines.append(f"  before refinement: {_said(rec['before'])}")
     mark = ""
     if asked is not None:
         b, a = rec["before"]["group"] == asked, rec["after"]["group"] == asked
         mark = " (as asked)" if a else (" (was as asked before)" if b else " (not as asked)")
-    lines.append(f"  after refinement:  {said(rec['after'])}{mark}")
+    lines.append(f"  after refinement:  {_said(rec['after'])}{mark}")
     a0 = (rec["before"].get("adherence") or {}).get("score")
     a1 = (rec["after"].get("adherence") or {}).get("score")
     if a0 is not None and a1 is not None:
