@@ -778,3 +778,55 @@ def test_grid_ops_are_skipped_only_on_boxes_where_they_are_the_identity(bc):
                 box = tuple(slice(o, o + d) for o, d in zip(off, dims, strict=True))
                 assert np.array_equal(out[box], v0[box]), (off, dims)
     assert 0 < skipped < 4 * 3 * 4 * 3
+
+
+@pytest.mark.parametrize(
+    "bc",
+    [
+        {"type": "bounding_box", "padding": 2, "friction": 0.3},
+        {"type": "bounding_box", "padding": 4, "friction": 0.0},
+        {"type": "surface_collider", "friction": 0.3},  # the ground: normal +z
+        {"type": "surface_collider", "point": [0, 0.1, 0], "normal": [0, -1, 0], "mode": "slip"},
+        {"type": "surface_collider", "point": [0.13, 0, 0], "normal": [1, 0, 0], "mode": "sticky"},
+        {"type": "surface_collider", "normal": [0.2, 0.1, 1.0], "friction": 0.4},  # tilted
+    ],
+)  # fmt: skip
+def test_grid_ops_launch_on_disjoint_pieces_that_give_the_whole_box_launch(bc):
+    """``apply_grid`` launches a wall or an axis-aligned plane only on the nodes it may
+    change (``_act_boxes``: wall slabs, the nodes behind a plane). On every sub-box of the
+    grid the pieces are disjoint, lie in the box, and the result is bitwise the result of
+    the op's kernel launched on the whole box; the pieces are smaller than the box where
+    the op reaches only part of it."""
+    from motionphysics.sim import boundary_kernels as K
+
+    prog = program([bc])
+    kind = bc["type"] if bc["type"] == "bounding_box" else bc.get("mode", "frictional")
+    op = [o for o in prog._grid_ops if o.kind == kind][-1]
+    prog._grid_ops = [op]  # this op alone (not the domain walls)
+    v0 = random_grid(seed=5).astype(np.float32)
+    whole = grid_array(v0)
+    prog._launch_grid_op(K, op, whole, (0, 0, 0), DIMS, prog.domain_lo, prog.dx)
+    out = whole.numpy()
+    smaller = 0
+    for off in [(a, b, c) for a in range(0, 9, 2) for b in range(0, 9, 3) for c in range(0, 9, 2)]:
+        for size in (1, 3, 5, 9):
+            dims = tuple(min(size, n - o) for o, n in zip(off, DIMS, strict=True))
+            cover = np.zeros(DIMS, int)
+            pieces = prog._act_boxes(op, off, dims)
+            for p_off, p_dims in pieces:
+                assert all(
+                    o <= po and po + pd <= o + d and pd > 0
+                    for o, d, po, pd in zip(off, dims, p_off, p_dims, strict=True)
+                ), (off, dims, pieces)
+                cover[tuple(slice(o, o + d) for o, d in zip(p_off, p_dims, strict=True))] += 1
+            assert cover.max(initial=0) <= 1, (off, dims, pieces)  # disjoint
+            smaller += int(0 < cover.sum() < np.prod(dims))
+            g = grid_array(v0)
+            prog.apply_grid(None, g, 0.0, 0, 1e-3, region=(off, dims))
+            box = tuple(slice(o, o + d) for o, d in zip(off, dims, strict=True))
+            inside = np.zeros(DIMS, bool)
+            inside[box] = True
+            np.testing.assert_array_equal(g.numpy()[inside], out[inside])
+            np.testing.assert_array_equal(g.numpy()[~inside], v0[~inside])
+    if "normal" not in bc or bc["normal"] in ([0, -1, 0], [1, 0, 0]):
+        assert smaller > 0  # the walls and axis-aligned planes launch on less than the box

@@ -154,7 +154,7 @@ def test_grid_condition_gradients_match_finite_differences(case):
     check_grid_case(case, region=None)
 
 
-@pytest.mark.parametrize("case", ["chain", "frictional"])
+@pytest.mark.parametrize("case", ["chain", "frictional", "bounding_box"])
 def test_grid_gradients_with_an_active_region(case):
     # The solver processes only the nodes around the particles: outside the region the
     # hook is the identity and the incoming gradient must pass through untouched.

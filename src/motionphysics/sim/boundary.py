@@ -877,7 +877,7 @@ class BoundaryProgram:
         """
         from motionphysics.sim import boundary_kernels as K
 
-        wp = init_warp()
+        init_warp()
         if tuple(grid_v.shape) != self.grid_dims:
             raise ValueError(
                 f"grid_v has shape {tuple(grid_v.shape)}, the program was built for {self.grid_dims}"
@@ -893,88 +893,152 @@ class BoundaryProgram:
                 raise ValueError(f"region {region} is not inside the grid {self.grid_dims}")
             if min(dims) == 0:
                 return
-        off_v = wp.vec3i(*off)
         lo, dx = self.domain_lo, self.dx
-        kw = {"device": self.device, "grid_offset": off_v}
         for op in self._grid_ops:
             if not op.window.active(t, substep, dt):
                 continue
-            if not self._may_act(op, off, dims):
-                continue
-            s = op.scalars
-            if op.kind == "clamp_grid":
-                _launch(
-                    K._clamp_grid,
-                    dims,
-                    [off_v, lo, dx, s["box_lo"], s["box_hi"], op.param.array, s["axis"]],
-                    [grid_v],
-                    **kw,
-                )
-            elif op.kind == "bounding_box":
-                friction = op.param.array if op.param is not None else self._zero_friction()
-                _launch(
-                    K._bounding_box,
-                    dims,
-                    [off_v, s["first"], s["last"], friction],
-                    [grid_v],
-                    **kw,
-                )
-            elif op.kind == "static":
-                mode = {
-                    "sticky": K.MODE_STICKY,
-                    "slip": K.MODE_SLIP,
-                    "frictional": K.MODE_FRICTIONAL,
-                }[s["mode"]]
-                friction = op.param.array if op.param is not None else self._zero_friction()
-                _launch(
-                    K._static_grid,
-                    dims,
-                    [
-                        off_v,
-                        lo,
-                        dx,
-                        s["ls_lo"],
-                        s["inv_h"],
-                        s["phi"],
-                        s["nrm"],
-                        int(mode),
-                        friction,
-                    ],
-                    [grid_v],
-                    **kw,
-                )
-            elif op.kind == "cut":
-                _launch(
-                    K._cut_grid,
-                    dims,
-                    [
-                        off_v,
-                        lo,
-                        dx,
-                        s["use_box"],
-                        s["box_lo"],
-                        s["box_hi"],
-                        s["point"],
-                        s["normal"],
-                        op.param.array,
-                    ],
-                    [grid_v],
-                    **kw,
-                )
-            else:
-                mode = {
-                    "sticky": K.MODE_STICKY,
-                    "slip": K.MODE_SLIP,
-                    "frictional": K.MODE_FRICTIONAL,
-                }[op.kind]
-                friction = op.param.array if op.param is not None else self._zero_friction()
-                _launch(
-                    K._surface_collider,
-                    dims,
-                    [off_v, lo, dx, s["point"], s["normal"], int(mode), friction],
-                    [grid_v],
-                    **kw,
-                )
+            for box_off, box_dims in self._act_boxes(op, off, dims):
+                self._launch_grid_op(K, op, grid_v, box_off, box_dims, lo, dx)
+
+    def _launch_grid_op(self, K, op, grid_v, off, dims, lo, dx) -> None:
+        """Launch grid op ``op``'s kernel over the sub-box (``off``, ``dims``) of ``grid_v``."""
+        wp = init_warp()
+        off_v = wp.vec3i(*off)
+        kw = {"device": self.device, "grid_offset": off_v}
+        s = op.scalars
+        if op.kind == "clamp_grid":
+            _launch(
+                K._clamp_grid,
+                dims,
+                [off_v, lo, dx, s["box_lo"], s["box_hi"], op.param.array, s["axis"]],
+                [grid_v],
+                **kw,
+            )
+        elif op.kind == "bounding_box":
+            friction = op.param.array if op.param is not None else self._zero_friction()
+            _launch(
+                K._bounding_box,
+                dims,
+                [off_v, s["first"], s["last"], friction],
+                [grid_v],
+                **kw,
+            )
+        elif op.kind == "static":
+            mode = {
+                "sticky": K.MODE_STICKY,
+                "slip": K.MODE_SLIP,
+                "frictional": K.MODE_FRICTIONAL,
+            }[s["mode"]]
+            friction = op.param.array if op.param is not None else self._zero_friction()
+            _launch(
+                K._static_grid,
+                dims,
+                [
+                    off_v,
+                    lo,
+                    dx,
+                    s["ls_lo"],
+                    s["inv_h"],
+                    s["phi"],
+                    s["nrm"],
+                    int(mode),
+                    friction,
+                ],
+                [grid_v],
+                **kw,
+            )
+        elif op.kind == "cut":
+            _launch(
+                K._cut_grid,
+                dims,
+                [
+                    off_v,
+                    lo,
+                    dx,
+                    s["use_box"],
+                    s["box_lo"],
+                    s["box_hi"],
+                    s["point"],
+                    s["normal"],
+                    op.param.array,
+                ],
+                [grid_v],
+                **kw,
+            )
+        else:
+            mode = {
+                "sticky": K.MODE_STICKY,
+                "slip": K.MODE_SLIP,
+                "frictional": K.MODE_FRICTIONAL,
+            }[op.kind]
+            friction = op.param.array if op.param is not None else self._zero_friction()
+            _launch(
+                K._surface_collider,
+                dims,
+                [off_v, lo, dx, s["point"], s["normal"], int(mode), friction],
+                [grid_v],
+                **kw,
+            )
+
+    def _act_boxes(
+        self, op, off: tuple[int, ...], dims: tuple[int, ...]
+    ) -> list[tuple[tuple[int, ...], tuple[int, ...]]]:
+        """Disjoint sub-boxes ``(offset, dims)`` of the box (``off``, ``dims``) that hold
+        every node grid op ``op`` may change; its kernel is launched on these alone (under
+        a tape: saved copies and adjoints over them alone). Exact: the kernels are the
+        identity, with the identity adjoint, on every node left out, and they act on each
+        node by itself, so launching on disjoint pieces gives the same values.
+
+        * ``bounding_box``: the wall layers (nodes ``i <= first`` or ``i >= last`` on some
+          axis), split into disjoint slabs axis by axis: on a body resting on the floor
+          a slab a node or two thick, where the whole box was launched before.
+        * an axis-aligned collider plane (``sticky``/``slip``/``frictional``): the nodes
+          on or behind it, with the margin of :meth:`_may_act` (2 % of a cell).
+        * anything else: the whole box, unless :meth:`_may_act` rules it out.
+        """
+        if min(dims) <= 0 or not self._may_act(op, off, dims):
+            return []
+        lo_i = [int(o) for o in off]
+        hi_i = [int(o) + int(n) for o, n in zip(off, dims, strict=True)]  # exclusive
+        if op.kind == "bounding_box":
+            first, last = op.scalars["first"], op.scalars["last"]
+            boxes = []
+            for a in range(3):
+                low_end = min(hi_i[a], int(first[a]) + 1)
+                if low_end > lo_i[a]:  # the low wall layers inside the box
+                    b_hi = list(hi_i)
+                    b_hi[a] = low_end
+                    boxes.append((list(lo_i), b_hi))
+                # (past the low slab: with walls overlapping, a node is launched once)
+                high_start = max(lo_i[a], int(last[a]), low_end)
+                if high_start < hi_i[a]:
+                    b_lo = list(lo_i)
+                    b_lo[a] = high_start
+                    boxes.append((b_lo, list(hi_i)))
+                # what is left lies strictly between the walls along axis a
+                lo_i[a] = max(lo_i[a], int(first[a]) + 1)
+                hi_i[a] = min(hi_i[a], int(last[a]))
+                if lo_i[a] >= hi_i[a]:
+                    break
+            return [
+                (tuple(b_lo), tuple(h - l for l, h in zip(b_lo, b_hi, strict=True)))
+                for b_lo, b_hi in boxes
+            ]
+        if op.kind in ("sticky", "slip", "frictional"):
+            n = op.scalars["normal"]
+            axes = [a for a in range(3) if n[a] != 0.0]
+            if len(axes) == 1:
+                a = axes[0]
+                # node i is on or behind the plane when (lo + i dx - p) * sign(n) <= tol dx
+                g = (float(op.scalars["point"][a]) - self.domain_lo[a]) / self.dx
+                if n[a] > 0.0:
+                    hi_i[a] = min(hi_i[a], int(math.floor(g + 0.02)) + 1)
+                else:
+                    lo_i[a] = max(lo_i[a], int(math.ceil(g - 0.02)))
+                if lo_i[a] >= hi_i[a]:
+                    return []
+                return [(tuple(lo_i), tuple(h - l for l, h in zip(lo_i, hi_i, strict=True)))]
+        return [(tuple(off), tuple(dims))]
 
     def _may_act(self, op, off: tuple[int, ...], dims: tuple[int, ...]) -> bool:
         """False when grid op ``op`` is the identity on every node of the box (``off``,
