@@ -83,3 +83,24 @@ def test_the_summary_params_and_report_show_the_motion_asked_and_simulated(tmp_p
     metrics = json.loads((out / "metrics.json").read_text())
     assert a1 == pytest.approx(metrics["motion_adherence"]["score"], abs=1e-4)
     assert f"motion adherence (eval, 0..1): {a0:.2f} before, {a1:.2f} after" in summary
+
+
+def test_a_refined_run_reads_the_motion_asked_for_what_its_material_can_show(tmp_path, capsys):
+    """Through a config file: a refined water run whose prompt says "collapses" asks for a
+    splash ("crumbles" is sand's word), as the same run without refinement reads it."""
+    data = _config("builtin:cube")
+    data["prompt"] = "A block of water collapses and splashes across the floor of a tank."
+    data["material"] = {"class": "newtonian", "density": 1000.0, "mu": 1.0, "kappa": 1.0e5}
+    data["optimize"] = {"iterations": 1, "boost": 1, "prior": "motion", "loss": "lmd"}
+    cfg = tmp_path / "water.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    asked = {}
+    for refine in (True, False):
+        out = tmp_path / f"run{refine}"
+        args = ["run", str(cfg), "--out", str(out)] + ([] if refine else ["--iters", "0"])
+        assert main(args) == 0
+        params = json.loads((out / "params.json").read_text())
+        rec = params["optimise"]["motion"] if refine else params["metrics"]["motion"]
+        asked[refine] = rec["asked"]
+    assert asked == {True: "splashes", False: "splashes"}
+    assert "motion asked: splashes" in capsys.readouterr().out

@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motionphysics.priors.motion_summary import motion_lines, motion_record, trajectory_motion
+from motionphysics.priors.motion_summary import (
+    asked_motion,
+    motion_lines,
+    motion_record,
+    trajectory_motion,
+)
 
 
 def _ball(n=400, r=0.05, seed=0):
@@ -98,3 +103,13 @@ def test_a_plain_runs_verdict(group, score, verdict, advice):
     assert lines[1].endswith(f"({verdict})")
     assert ("--prior motion" in lines[-1]) == advice
     assert any("adherence" in x for x in lines) == (score is not None)
+
+
+def test_the_refined_record_reads_the_motion_asked_for_what_the_material_can_show():
+    """A refined run reads the prompt as a run without refinement does (``asked_motion``):
+    "crumbles" is sand's word, so water that "collapses and splashes" asks for a splash."""
+    x0, v0, t = _drop(0.0)
+    prompt = "A block of water collapses and splashes across the floor of a tank."
+    rec = motion_record(prompt, "newtonian", t, (x0, v0), (x0, v0))
+    assert rec["asked"] == asked_motion(prompt, "newtonian")[0] == "splashes"
+    assert motion_record(prompt, "sand", t, (x0, v0), (x0, v0))["asked"] == "crumbles"

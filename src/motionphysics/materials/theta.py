@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import torch
@@ -33,13 +34,20 @@ EPS = 1e-6
 class Parameterisation:
     """theta <-> physical values for a subset ``names`` of a class's parameters.
 
+    ``ranges``: ``{name: (low, high)}`` replacing a name's handbook range (a start a
+    person wrote outside it: :func:`motionphysics.optimize.fit.start_ranges`).
+
     ``names`` defaults to all of the class's parameters (density excluded);
     ``density`` may be listed explicitly. ``theta`` has shape ``[k]`` (or ``[k, ...]``
     when the values are per-particle tensors), ``k = len(names)``, in ``names`` order.
     """
 
     def __init__(
-        self, cls: str, names: Sequence[str] | None = None, dtype: torch.dtype = torch.float64
+        self,
+        cls: str,
+        names: Sequence[str] | None = None,
+        dtype: torch.dtype = torch.float64,
+        ranges: Mapping[str, tuple[float, float]] | None = None,
     ):
         self.cls = normalise_class(cls)
         allowed = (*MATERIALS[self.cls].names, "density")
@@ -51,7 +59,20 @@ class Parameterisation:
                 f"(choose distinct names among {', '.join(allowed)})"
             )
         self.names: tuple[str, ...] = names
-        self.specs = tuple(spec(self.cls, n) for n in names)
+        ranges = dict(ranges or {})
+        bad = [n for n in ranges if n not in names]
+        if bad:
+            raise ValueError(f"Parameterisation: ranges for {bad}, not among {list(names)}")
+        specs = []
+        for n in names:
+            ps = spec(self.cls, n)
+            if n in ranges:
+                lo, hi = (float(v) for v in ranges[n])
+                if not (0.0 < lo < hi if ps.scale == "log" else lo < hi):
+                    raise ValueError(f"Parameterisation: range {ranges[n]} of {n} is empty")
+                ps = replace(ps, low=lo, high=hi)
+            specs.append(ps)
+        self.specs = tuple(specs)
         self.dtype = dtype
 
     def __len__(self) -> int:

@@ -115,6 +115,35 @@ def optimised_names(cfg, cls: str, fixed: tuple[str, ...] = ()) -> list[str]:
     return names
 
 
+def start_ranges(
+    cls: str, names, start: dict[str, float], label=lambda n: n
+) -> tuple[dict[str, tuple[float, float]], list[str]]:
+    """The ranges of the optimised ``names`` that must be widened to hold their ``start``
+    values (a value a person wrote outside the handbook range is used as written, so its
+    refinement starts there), and one line per widened range saying so.
+
+    Returns ``({name: (low, high)}, lines)``; names whose start lies in the handbook
+    range keep it (absent from the dict). ``label(name)`` names a parameter in the lines.
+    """
+    from motionphysics.materials.catalog import _fmt, spec
+
+    ranges: dict[str, tuple[float, float]] = {}
+    lines = []
+    for n in names:
+        ps, x = spec(cls, n), float(start[n])
+        tol = 1e-9 * max(abs(ps.low), abs(ps.high))
+        if ps.low - tol <= x <= ps.high + tol:
+            continue
+        lo, hi = min(ps.low, x), max(ps.high, x)
+        ranges[n] = (lo, hi)
+        unit = "" if ps.unit == "1" else f" {ps.unit}"
+        lines.append(
+            f"optimize: {label(n)} starts at {_fmt(x)}{unit}, outside the handbook range of "
+            f"{cls} ({ps.range_text()}); it is refined within {_fmt(lo)} - {_fmt(hi)}{unit}"
+        )
+    return ranges, lines
+
+
 def build_problem(parts, loss, names: list[str] | None = None):
     """The optimisation :class:`~motionphysics.optimize.Problem` of an assembly.
 
@@ -133,12 +162,15 @@ def build_problem(parts, loss, names: list[str] | None = None):
         "density": float(material.density),
         **{k: float(v) for k, v in material.values.items()},
     }
+    ranges, notes = start_ranges(cls, names, start)
     specs = {}
     for n in names:
         ps = spec(cls, n)
-        specs[n] = ParamSpec(n, ps.unit, float(ps.low), float(ps.high), ps.scale)
+        lo, hi = ranges.get(n, (float(ps.low), float(ps.high)))
+        specs[n] = ParamSpec(n, ps.unit, lo, hi, ps.scale)
     return Problem(
-        theta_map=Parameterisation(cls, names),
+        theta_map=Parameterisation(cls, names, ranges=ranges),
+        range_notes=notes,
         initial={n: start[n] for n in names},
         fixed={k: v for k, v in start.items() if k not in names},
         to_sim=parts.to_sim,
@@ -627,6 +659,11 @@ def run_fit(
         }
         writer.state["fit"] = fit
         writer.save_config(cfg)
+        if problem.range_notes:
+            from motionphysics.assembly_material import warn
+
+            for text in problem.range_notes:
+                warn(text, writer.observer)
 
         log_path = writer.path / LOG_NAME
         resuming = resume and (writer.path / CHECKPOINT_NAME).exists()

@@ -108,10 +108,14 @@ class ObjectsThetaMap:
     ``names``: ``OBJECT.PARAM`` leaf names. ``to_theta({leaf: value}) -> [k]``;
     ``from_theta(theta [k, ...]) -> {leaf: [...]}`` (differentiable)."""
 
-    def __init__(self, per_object: list[tuple[str, str, list[str]]]):
+    def __init__(self, per_object: list[tuple[str, str, list[str]]], ranges=None):
         from motionphysics.materials.theta import Parameterisation
 
-        self.maps = [(obj, Parameterisation(cls, names)) for obj, cls, names in per_object]
+        ranges = ranges or {}
+        self.maps = [
+            (obj, Parameterisation(cls, names, ranges=ranges.get(obj)))
+            for obj, cls, names in per_object
+        ]
         self.names = [leaf(obj, n) for obj, pm in self.maps for n in pm.names]
 
     def to_theta(self, values: Mapping[str, Any]) -> Tensor:
@@ -178,25 +182,31 @@ def build_objects_problem(parts, loss, optimised: dict[str, list[str]]) -> Objec
     if not optimised:
         raise UserInputError("optimize.params: names no object's parameters to optimise")
     objs = list(parts.objects)
+    from motionphysics.optimize.fit import start_ranges
+
     per, initial, fixed, specs = [], {}, {}, {}
+    ranges, notes = {}, []
     for o in objs:
         m = o.material
         start = {"density": float(m.density), **{k: float(v) for k, v in m.values.items()}}
         names = optimised.get(o.name, [])
         if names:
             per.append((o.name, m.cls, names))
+            wide, lines = start_ranges(m.cls, names, start, lambda n, o=o: leaf(o.name, n))
+            ranges[o.name] = wide
+            notes += lines
         for k, v in start.items():
             if k in names:
                 initial[leaf(o.name, k)] = v
                 ps = spec(m.cls, k)
-                specs[leaf(o.name, k)] = ParamSpec(
-                    leaf(o.name, k), ps.unit, float(ps.low), float(ps.high), ps.scale
-                )
+                lo, hi = ranges[o.name].get(k, (float(ps.low), float(ps.high)))
+                specs[leaf(o.name, k)] = ParamSpec(leaf(o.name, k), ps.unit, lo, hi, ps.scale)
             else:
                 fixed[leaf(o.name, k)] = v
     cfg = parts.cfg
     problem = ObjectsProblem(
-        theta_map=ObjectsThetaMap(per),
+        theta_map=ObjectsThetaMap(per, ranges),
+        range_notes=notes,
         initial=initial,
         fixed=fixed,
         to_sim=lambda phys: parts.to_sim_objects(problem.per_object(phys)),

@@ -108,6 +108,9 @@ class Problem:
     """Names optimised as per-particle fields ([P] leaves) instead of scene-wide scalars."""
     initial_velocity: tuple[float, float, float] | None = None
     """Starting initial velocity [m/s] when it is optimised; None: not optimised."""
+    range_notes: list[str] = field(default_factory=list)
+    """One line per optimised parameter whose range was widened to hold its start value
+    (written outside the handbook range), for the run to print."""
 
     def __post_init__(self):
         unknown = [n for n in self.per_particle if n not in self.theta_map.names]

@@ -479,7 +479,7 @@ def run_refinement(parts, writer, *, resume: bool = False, stage=None) -> dict[s
     opt_cfg, boost_note = _boost_for_prior(cfg, prior)
     if boost_note:
         writer.observer.message("info", boost_note)
-    limits = prior_limits(prior, problem.theta_map.names)
+    limits = [*problem.range_notes, *prior_limits(prior, problem.theta_map.names)]
     if limits:
         from motionphysics.assembly_material import warn
 

@@ -100,10 +100,9 @@ def motion_record(
     """The motion asked for and simulated: ``before``/``after`` are ``(x, v)`` of the
     initial and the refined trajectory at times ``t``. ``mass`` [P], ``gravity`` [3] and
     ``floor`` (ground height along up, or None: the lowest point reached) are what eval
-    scores the adherence with."""
-    from motionphysics.language.captions import prompt_motion_group
-
-    asked, similarity = prompt_motion_group(prompt)
+    scores the adherence with. The motion asked is read for what ``cls`` can show
+    (:func:`asked_motion`), as a run without refinement reads it."""
+    asked, similarity = asked_motion(prompt, cls)
     rec: dict[str, Any] = {
         "asked": asked,
         "asked_similarity": float(similarity),
