@@ -154,7 +154,9 @@ def test_a_config_without_boundary_conditions_lands_on_a_ground(tmp_path, capsys
 
 
 def test_a_scene_below_z0_stands_on_a_floor_under_its_lowest_point(tmp_path, capsys):
+    # (a prompt that asks for no fall: one that does drops it, tests/test_cli_drop.py)
     data = {
+        "prompt": "A rubber ball rests on the ground and wobbles.",
         "scene": {**_ball(0.0), "max_particles": 800},
         "material": RUBBER,
         "sim": {"grid": 16, "frames": 3, "frame_dt": 0.02, "substeps": 16},

@@ -687,6 +687,7 @@ def assemble(
         from motionphysics.scene.prepare import prepare
 
         scene = load_scene(cfg.scene.source, shade=cfg.scene.shade)
+        capture = _capture_warnings(scene, cfg.scene, observer)
         cfg, ground_note = default_ground(cfg, *_lowest(scene, cfg.scene))
         # The fitted domain leaves room for the motion the config implies (initial
         # velocity, gravity, forces). The class-based spread allowance of prepare() is not
@@ -766,14 +767,32 @@ def assemble(
         resolution=resolution,
         observer=observer,
         reference_image=ref_np,
-        scene_notes=_scene_notes(ground_note, sim_scene, observer),
+        scene_notes=_scene_notes(ground_note, sim_scene, observer, capture),
     )
 
 
-def _scene_notes(ground_note: str | None, sim_scene, observer) -> dict[str, str]:
+def _capture_warnings(scene, scene_cfg, observer, prefix: str = "") -> list[str]:
+    """Warn (one line each) what a capture loaded as it is was read as and what to set:
+    its header's vertical axis, floaters, its size (:mod:`motionphysics.scene.capture_notes`)."""
+    from motionphysics.scene.capture_notes import capture_notes
+    from motionphysics.scene.prepare import selected_means
+
+    lines = [prefix + n for n in capture_notes(scene_cfg, selected_means(scene, scene_cfg))]
+    for line in lines:
+        warn(line, observer)
+    return lines
+
+
+def _scene_notes(
+    ground_note: str | None, sim_scene, observer, capture: list[str] | None = None
+) -> dict[str, str]:
     """The ``ground`` and ``fill`` lines of a prepared scene (see Assembly.scene_notes);
-    a fill that leaves the object hollow is also a warning (its mass is the surface's)."""
+    a fill that leaves the object hollow is also a warning (its mass is the surface's).
+    ``capture``: the warnings about a capture loaded as it is (already given), kept as
+    ``capture`` (one line each, joined by newlines)."""
     notes = {}
+    if capture:
+        notes["capture"] = "\n".join(capture)
     if ground_note:
         notes["ground"] = ground_note
         observer.message("info", ground_note)
@@ -898,9 +917,15 @@ def _assemble_objects(
                     scene, o.source, o.split, o.part, o.split_property, f"objects[{i}].part"
                 )
             scenes.append(scene)
+        capture = []
+        for s, o in zip(scenes, ocfgs, strict=True):
+            capture += _capture_warnings(s, o, observer, f"objects: {o.name}: ")
         lows = [_lowest(s, o) for s, o in zip(scenes, ocfgs, strict=True)]
         cfg, ground_note = default_ground(
-            cfg, min(z for z, _ in lows), max(size for _, size in lows)
+            cfg,
+            min(z for z, _, _ in lows),
+            max(size for _, size, _ in lows),
+            max(z + h for z, _, h in lows) - min(z for z, _, _ in lows),
         )
         classes = [o.material.class_ for o in ocfgs]
         sim_scene = prepare_objects(
@@ -1008,7 +1033,7 @@ def _assemble_objects(
         observer=observer,
         reference_image=ref_np,
         objects=objects,
-        scene_notes=_scene_notes(ground_note, sim_scene, observer),
+        scene_notes=_scene_notes(ground_note, sim_scene, observer, capture),
     )
 
 

@@ -38,18 +38,59 @@ GROUND_FRICTION = 0.3
 """Coulomb coefficient of the default ground (``sim.boundary.DEFAULT_COLLIDER_FRICTION``)."""
 
 
-def default_ground(cfg: RunConfig, lowest_z: float, size: float) -> tuple[RunConfig, str | None]:
+DROP_CUES = ("fall", "bounce")
+"""Motion cues of :func:`motionphysics.metrics.adherence.parse_prompt` that need a fall:
+a prompt that says one of them ("falls", "is dropped", "hits the ground", "bounces"), not
+negated, asks for a drop. (A material word such as "rubber" implies a bounce at half
+weight; it asks for no drop.)"""
+
+
+def _asks_for_a_drop(prompt: str) -> str | None:
+    """The prompt's words that ask for a fall or a bounce (None: it asks for neither)."""
+    from motionphysics.metrics.adherence import parse_prompt
+
+    cues = parse_prompt(prompt)["cues"]
+    for name in DROP_CUES:  # the fall's own words first ("hits the ground", then "bounces")
+        for cue in cues:
+            if cue["cue"] == name and not cue["negated"]:
+                return str(cue["words"])
+    return None
+
+
+def _set_in_motion(cfg: RunConfig) -> bool:
+    """Whether the config itself moves the object: an initial velocity or a force."""
+    if cfg.forces:
+        return True
+    vels = [cfg.sim.initial_velocity]
+    vels += [o.initial_velocity for o in cfg.objects or [] if o.initial_velocity is not None]
+    return any(float(np.abs(np.asarray(v, dtype=np.float64)).max()) > 0.0 for v in vels)
+
+
+def drop_height(height: float, size: float) -> float:
+    """How far below a resting object the default ground goes when the prompt asks for a
+    fall [m]: the object's height ``height``, at least half its largest side ``size`` (a
+    flat thing still falls visibly)."""
+    return float(max(height, 0.5 * size))
+
+
+def default_ground(
+    cfg: RunConfig, lowest_z: float, size: float, height: float | None = None
+) -> tuple[RunConfig, str | None]:
     """``cfg`` with the default ground when it leaves ``boundary_conditions`` out.
 
     Left out (null): one frictional ``surface_collider`` facing +z (friction
     :data:`GROUND_FRICTION`) at z = 0 when the scene rests on or above it, else under
     the scene's lowest particle ``lowest_z`` [m] (a scene that reaches below z = 0
     stands on a floor there instead of starting inside one); ``size`` [m] (the scene's
-    extent) sets the round-off tolerance. ``boundary_conditions: []`` is free space: no
-    ground. Returns the config with the collider written in (``run.yaml`` records it)
-    and the summary's ``ground:`` line (None when the config gave its own list). With a
-    ``region`` of a capture the static scene is the support and no floor is added
-    (:func:`motionphysics.assembly_scene.region_ground`).
+    extent) sets the round-off tolerance. A scene that would stand on that floor while
+    the prompt asks for a fall or a bounce ("hits the ground and bounces back"), and that
+    the config does not set in motion itself (no initial velocity, no force, gravity
+    down), falls onto it instead: the floor goes :func:`drop_height` (``height`` [m], the
+    scene's vertical extent) under its lowest point. ``boundary_conditions: []`` is free
+    space: no ground. Returns the config with the collider written in (``run.yaml``
+    records it) and the summary's ``ground:`` line (None when the config gave its own
+    list). With a ``region`` of a capture the static scene is the support and no floor
+    is added (:func:`motionphysics.assembly_scene.region_ground`).
     """
     from motionphysics.assembly_scene import region_ground
 
@@ -59,17 +100,30 @@ def default_ground(cfg: RunConfig, lowest_z: float, size: float) -> tuple[RunCon
     if cfg.boundary_conditions is not None:
         return cfg, None
     z = 0.0 if lowest_z >= -1e-4 * max(size, 1e-6) else float(lowest_z)
+    where = (
+        "z = 0"
+        if z == 0.0
+        else f"z = {z:.4g} (under the scene's lowest point, which lies below z = 0)"
+    )
+    h = float(height) if height is not None else float(size)
+    g = np.asarray(cfg.sim.gravity, dtype=np.float64)
+    gn = float(np.linalg.norm(g))
+    rests = lowest_z - z <= 0.01 * max(h, 1e-6)
+    words = _asks_for_a_drop(cfg.prompt) if rests else None
+    if words is not None and not _set_in_motion(cfg) and gn > 0 and -g[2] >= 0.7 * gn:
+        drop = drop_height(h, size)
+        z = float(lowest_z) - drop
+        where = (
+            f"z = {z:.4g}, {drop:.3g} m under the scene's lowest point: the prompt asks for "
+            f"a fall ('{words}'), so the object is dropped from there instead of standing "
+            "on the floor (`boundary_conditions` or `scene.translate` for another height)"
+        )
     floor = SurfaceCollider(
         type="surface_collider",
         point=(0.0, 0.0, z),
         normal=(0.0, 0.0, 1.0),
         mode="frictional",
         friction=GROUND_FRICTION,
-    )
-    where = (
-        "z = 0"
-        if z == 0.0
-        else f"z = {z:.4g} (under the scene's lowest point, which lies below z = 0)"
     )
     note = (
         f"ground: frictional floor at {where} (boundary_conditions left out; "
@@ -78,12 +132,14 @@ def default_ground(cfg: RunConfig, lowest_z: float, size: float) -> tuple[RunCon
     return cfg.model_copy(update={"boundary_conditions": [floor]}), note
 
 
-def _lowest(scene, scene_cfg) -> tuple[float, float]:
-    """(lowest z [m], largest extent [m]) of the splat centres ``prepare`` will simulate."""
+def _lowest(scene, scene_cfg) -> tuple[float, float, float]:
+    """(lowest z [m], largest extent [m], vertical extent [m]) of the splat centres
+    ``prepare`` will simulate."""
     from motionphysics.scene.prepare import selected_means
 
     pts = selected_means(scene, scene_cfg)
-    return float(pts[:, 2].min()), float(np.ptp(pts, axis=0).max())
+    ext = np.ptp(pts, axis=0)
+    return float(pts[:, 2].min()), float(ext.max()), float(ext[2])
 
 
 def _ground_height(cfg: RunConfig, xy_centre: np.ndarray, up: np.ndarray) -> float | None:

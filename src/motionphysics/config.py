@@ -627,9 +627,11 @@ class RunConfig(_Strict):
     sim: SimConfig = SimConfig()
     boundary_conditions: list[BoundaryCondition] | None = None
     """Grid conditions and colliders. Left out (null): a frictional floor at z = 0 (under
-    the scene's lowest point when the scene reaches below z = 0), said in the summary and
-    written to ``run.yaml``; ``[]``: free space (no ground). The faces of the simulation
-    domain are walls either way."""
+    the scene's lowest point when the scene reaches below z = 0; when the scene would stand
+    on it and the prompt asks for a fall or a bounce that nothing in the config starts,
+    one object height under it, so it falls), said in the summary and written to
+    ``run.yaml``; ``[]``: free space (no ground). The faces of the simulation domain are
+    walls either way."""
     forces: list[Force] = []
     camera: CameraConfig = CameraConfig()
     optimize: OptimizeConfig = OptimizeConfig()

@@ -92,3 +92,15 @@ def test_a_settling_too_small_to_see_is_no_bounce():
     x = g.reshape(-1, 3)[None] + np.stack([np.zeros(10), np.zeros(10), steel], -1)[:, None]
     m = physical_metrics({"x": x, "t": np.arange(10) * 0.04}, floor=0.0)
     assert m["rebound_ratio"] == 0.0
+
+
+def test_a_body_at_rest_has_no_rebound():
+    # a 10 cm body resting on its floor settles 0.02 mm and rises back 0.006 mm: round-off
+    # that read as rebound 0.30 (a resting donut, "partly as asked" a bounce). No visible
+    # fall (3 % of its height), no rebound.
+    rest = [0.05, 0.04999, 0.04998, 0.049986, 0.049984, 0.049985]
+    assert physical_metrics(_rigid(rest), floor=0.0)["rebound_ratio"] == 0.0
+    # the same shape scaled to a visible fall and rise is a bounce
+    drop = [0.05 + 1000 * (h - 0.04998) for h in rest]
+    m = physical_metrics(_rigid(drop), floor=0.0)
+    assert m["rebound_ratio"] == pytest.approx(0.006 / 0.02, rel=1e-6)

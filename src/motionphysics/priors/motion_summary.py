@@ -50,6 +50,12 @@ to what was asked when eval's motion adherence is at least this. Examples:
 - a foam block that bounced and kept its shape scores 0.03 on "squashes flat"."""
 
 
+STILL = 0.03
+"""A run whose particles moved at most this fraction of the object's size (the largest
+particle displacement over its largest side) hardly moved: its summary says so instead of
+proposing a refinement (a rubber duck resting on its floor moved 0.5 %)."""
+
+
 def _words(group: str | None) -> str:
     return "no motion group" if group is None else group.replace("_", " ")
 
@@ -65,7 +71,10 @@ def trajectory_motion(x, v, t, cls: str) -> dict[str, Any]:
         idx = np.sort(np.random.default_rng(0).choice(x.shape[1], MAX_PARTICLES, replace=False))
         x, v = x[:, idx], v[:, idx]
     m = clip_measures(x, v, np.asarray(t, dtype=np.float64))
-    return {"group": group_of(m, cls), "measures": {k: float(m[k]) for k in _SHOWN}}
+    measures = {k: float(m[k]) for k in _SHOWN}
+    size = max(float(np.ptp(x[0], axis=0).max()), 1e-9)
+    measures["moved"] = float(np.linalg.norm(x - x[:1], axis=-1).max()) / size
+    return {"group": group_of(m, cls), "measures": measures}
 
 
 def adherence_of(prompt: str, x, v, t, *, mass=None, gravity=None, floor=None) -> dict:
@@ -189,7 +198,15 @@ def plain_motion_lines(rec: dict[str, Any]) -> list[str]:
     ]
     if score is not None:
         lines.append(f"  motion adherence (eval, 0..1): {score:.2f}")
-    if not ok:
+    moved = sim["measures"].get("moved")
+    if not ok and moved is not None and moved < STILL:
+        # no material makes a body at rest on its ground do anything: refining cannot help
+        lines.append(
+            f"  it hardly moved (at most {100 * moved:.1f} % of its size): nothing sets it in "
+            "motion (it starts on its ground, with no velocity or force); lift it with "
+            "`scene.translate`, or give `sim.initial_velocity` or a force"
+        )
+    elif not ok:
         lines.append(
             "  the estimate's values do not give that motion here: refine toward the words "
             "with `--prior motion --loss lmd` (the embedded prior), or set the `material:` "
