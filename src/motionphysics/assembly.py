@@ -737,6 +737,11 @@ def assemble(
         if est is not None:
             for line in (est.get("estimate") or {}).get("warnings", []) or []:
                 warn(line, observer)
+        from motionphysics.scene.prepare import widen_for_spread
+
+        sim_scene, domain_note = widen_for_spread(sim_scene, material.cls, cfg.sim, cfg.scene)
+        if domain_note:
+            capture = [*capture, domain_note]  # (kept as the scene's `domain` note)
         resolution = resolve_simulation(material, cfg, sim_scene)
         for line in resolution.notes:
             warn(line, observer)
@@ -791,8 +796,13 @@ def _scene_notes(
     ``capture``: the warnings about a capture loaded as it is (already given), kept as
     ``capture`` (one line each, joined by newlines)."""
     notes = {}
+    domain = [c for c in capture or [] if c.startswith("domain: ")]
+    capture = [c for c in capture or [] if not c.startswith("domain: ")]
     if capture:
         notes["capture"] = "\n".join(capture)
+    if domain:
+        notes["domain"] = domain[0]
+        observer.message("info", domain[0])
     if ground_note:
         notes["ground"] = ground_note
         observer.message("info", ground_note)

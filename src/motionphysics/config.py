@@ -221,7 +221,8 @@ class SimConfig(_Strict):
     domain: Box | None = None
     """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` [m]; null: fitted around the scene."""
     grid: int = Field(64, ge=8, le=512)
-    """Cells along the longest side of the domain."""
+    """Cells along the longest side of the domain (of a fitted domain: before the cells a
+    liquid, paste or sand gets to spread into at the same cell size)."""
     frames: int = Field(48, ge=1)
     """Output frames (frame 0 is the initial state)."""
     frame_dt: float = Field(0.04, gt=0)

@@ -157,6 +157,7 @@ def run_pipeline(
         )
         cfg = parts.cfg
         writer.state.setdefault("scene", {}).update(parts.scene_notes)
+        writer.record_grid(parts.sim_scene)  # (the domain may have widened for a spread)
         material, res = parts.material, parts.resolution
         writer.record_material(material, res.values, res.record())
         writer.state["provenance"] = parts.provenance

@@ -417,6 +417,19 @@ class RunWriter:
         )
 
     # -- what a run records ------------------------------------------------------------
+    def record_grid(self, sim_scene) -> None:
+        """The grid of the ``scene`` block as simulated: domain corners, dx, node counts
+        (the assembly widens a fitted domain for a material that spreads after
+        :meth:`record_scene`)."""
+        self.state.setdefault("scene", {}).update(
+            {
+                "domain_lo": [float(v) for v in _np(sim_scene.domain_lo)],
+                "domain_hi": [float(v) for v in _np(sim_scene.domain_hi)],
+                "dx": float(sim_scene.dx),
+                "grid_dims": [int(v) for v in sim_scene.grid_dims],
+            }
+        )
+
     def record_scene(self, cfg, sim_scene) -> None:
         """``scene`` block of params.json and ``scene.ply`` (prepared rest splats; with a
         ``scene.region``, the static splats after them and a per-splat ``simulated`` flag)."""
@@ -938,7 +951,7 @@ def summary_text(result: RunResult) -> str:
         )
     scene = p.get("scene") or {}
     # the default ground; the static scene of a region run; why fill: true added nothing
-    for key in ("ground", "static", "static_support", "fill"):
+    for key in ("ground", "domain", "static", "static_support", "fill"):
         if scene.get(key):
             lines.append(f"{key}:{' ' * (9 - len(key))} {scene[key].removeprefix(key + ': ')}")
     opt = p.get("fit") or p.get("optimise")

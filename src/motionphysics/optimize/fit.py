@@ -628,6 +628,7 @@ def run_fit(
     with writer.guard():
         writer.record_scene(cfg, setup.parts.sim_scene)
         writer.state["scene"].update(setup.parts.scene_notes)
+        writer.record_grid(setup.parts.sim_scene)
         writer.record_camera(setup.cfg, setup.parts.camera_note, setup.parts.reference_image)
         parts, problem = setup.parts, setup.problem
         cfg = parts.cfg
