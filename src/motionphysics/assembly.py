@@ -941,6 +941,13 @@ def _assemble_objects(
         sim_scene = prepare_objects(
             scenes, ocfgs, cfg.sim, list(cfg.boundary_conditions), list(cfg.forces), classes
         )
+        from motionphysics.scene.prepare import object_overlap
+
+        error = object_overlap(
+            _np(sim_scene.particles), _np(sim_scene.object_id), float(sim_scene.dx), names
+        )
+        if error is not None:
+            raise UserInputError(error)
         counts = np.bincount(_np(sim_scene.object_id).astype(np.int64), minlength=len(ocfgs))
         observer.message(
             "info",
