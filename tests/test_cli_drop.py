@@ -167,3 +167,18 @@ def test_the_real_donut_capture_falls_when_the_prompt_drops_it(tmp_path, capsys)
     assert drop == pytest.approx(want, rel=0.1) and drop > 0.05
     assert "the prompt asks for a fall ('falls')" in _ground_line(out)
     assert z.min(1).min() < floor["point"][2] + float(traj["dx"])  # it reached the floor
+
+
+def test_a_big_object_is_dropped_no_further_than_lands_within_the_clip(tmp_path, capsys):
+    # a 5 m ball dropped its own height would land after 1 s, past a 20-frame clip (0.76 s):
+    # it is dropped what it falls in the first 40 % of the clip, and the clip shows the impact
+    data = _config("A huge rubber ball falls and bounces.", sim={"frames": 20, "grid": 16})
+    data["scene"] = {"source": "builtin:sphere", "scale": 5.0, "max_particles": 1200}
+    traj, params, run_yaml, out = _run(tmp_path, capsys, data, "huge")
+    (floor,) = run_yaml["boundary_conditions"]
+    z = traj["x"][:, :, 2]
+    drop = float(z[0].min()) - floor["point"][2]
+    assert drop == pytest.approx(0.5 * 9.8 * (0.4 * 19 * 0.04) ** 2, rel=0.02)
+    # it reaches the floor by frame 9 (0.4 of 19 intervals, plus a frame for the contact)
+    reached = np.nonzero(z.min(1) < floor["point"][2] + float(traj["dx"]))[0]
+    assert reached.size and reached[0] <= 9, z.min(1) - floor["point"][2]

@@ -11,6 +11,7 @@ Re-exported by :mod:`motionphysics.assembly`; builds no simulation and writes no
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -66,11 +67,21 @@ def _set_in_motion(cfg: RunConfig) -> bool:
     return any(float(np.abs(np.asarray(v, dtype=np.float64)).max()) > 0.0 for v in vels)
 
 
-def drop_height(height: float, size: float) -> float:
+IMPACT_BY = 0.4
+"""The default drop lands within this fraction of the simulated time, so the clip shows
+the impact and what follows (a 5 m ball dropped its own height takes 1 s to land, longer
+than a 20-frame clip)."""
+
+
+def drop_height(height: float, size: float, duration: float = math.inf, g: float = 9.8) -> float:
     """How far below a resting object the default ground goes when the prompt asks for a
     fall [m]: the object's height ``height``, at least half its largest side ``size`` (a
-    flat thing still falls visibly)."""
-    return float(max(height, 0.5 * size))
+    flat thing still falls visibly), and at most the fall that lands within
+    :data:`IMPACT_BY` of the clip's ``duration`` [s] under gravity ``g`` [m/s^2]."""
+    want = max(height, 0.5 * size)
+    if math.isfinite(duration) and duration > 0 and g > 0:
+        want = min(want, 0.5 * g * (IMPACT_BY * duration) ** 2)
+    return float(want)
 
 
 def default_ground(
@@ -111,7 +122,8 @@ def default_ground(
     rests = lowest_z - z <= 0.01 * max(h, 1e-6)
     words = _asks_for_a_drop(cfg.prompt) if rests else None
     if words is not None and not _set_in_motion(cfg) and gn > 0 and -g[2] >= 0.7 * gn:
-        drop = drop_height(h, size)
+        duration = max(int(cfg.sim.frames) - 1, 1) * float(cfg.sim.frame_dt)
+        drop = drop_height(h, size, duration, gn)
         z = float(lowest_z) - drop
         where = (
             f"z = {z:.4g}, {drop:.3g} m under the scene's lowest point: the prompt asks for "

@@ -630,7 +630,8 @@ class RunConfig(_Strict):
     """Grid conditions and colliders. Left out (null): a frictional floor at z = 0 (under
     the scene's lowest point when the scene reaches below z = 0; when the scene would stand
     on it and the prompt asks for a fall or a bounce that nothing in the config starts,
-    one object height under it, so it falls), said in the summary and written to
+    one object height under it, or less so that it lands within the first 40 % of the
+    clip, so it falls), said in the summary and written to
     ``run.yaml``; ``[]``: free space (no ground). The faces of the simulation domain are
     walls either way."""
     forces: list[Force] = []
