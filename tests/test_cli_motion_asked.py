@@ -95,7 +95,8 @@ def test_a_fluid_that_collapses_and_splashes_is_asked_to_splash(tmp_path, capsys
 
 def test_a_weak_second_reading_is_no_reading(tmp_path, capsys):
     """A paste that "piles up" is nearest "crumbles", which a paste cannot show; without
-    it the nearest group is a weak match (a bounce, 0.50): no motion is claimed."""
+    it the nearest group is a weak match (a bounce, 0.50): no motion group is claimed,
+    and eval's adherence to the words ("piles up") is what the run says."""
     data = _config("Toothpaste is squeezed out, falls onto the surface and piles up.")
     data["material"] = {
         "class": "non_newtonian",
@@ -110,5 +111,27 @@ def test_a_weak_second_reading_is_no_reading(tmp_path, capsys):
     cfg.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
     assert main(["run", str(cfg), "--out", str(out)]) == 0
-    assert "motion asked:" not in capsys.readouterr().out
-    assert "motion" not in json.loads((out / "params.json").read_text())["metrics"]
+    lines = capsys.readouterr().out.splitlines()
+    asked = next(s for s in lines if s.startswith("motion asked:"))
+    assert asked.startswith("motion asked: 'piles up' (no motion group of the motion prior")
+    motion = json.loads((out / "params.json").read_text())["metrics"]["motion"]
+    assert motion["asked"] is None and motion["asked_words"] == ["piles up"]
+    score = motion["simulated"]["adherence"]["score"]
+    assert f"  motion adherence (eval, 0..1): {score:.2f}" in lines
+
+
+def test_a_motion_no_group_holds_is_read_in_evals_words(tmp_path, capsys):
+    """ "Bends" is nearest "squashes flat" by its sentence embedding (0.72), but it is no
+    word of a squash: the run reads the motion as eval's words and claims no group."""
+    data = _config("A copper rod falls and bends when it hits the floor.")
+    data["material"] = {"class": "elastic", "density": 1000, "E": 1.0e6, "nu": 0.3}
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert main(["run", str(cfg), "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    asked = next(s for s in lines if s.startswith("motion asked:"))
+    assert "squashes flat" not in asked and "'bends'" in asked
+    motion = json.loads((out / "params.json").read_text())["metrics"]["motion"]
+    assert motion["asked"] is None and motion["asked_words"] == ["bends"]
+    assert any(e.startswith("bends") for e in motion["simulated"]["adherence"]["explanations"])

@@ -115,6 +115,7 @@ def motion_record(
     rec: dict[str, Any] = {
         "asked": asked,
         "asked_similarity": float(similarity),
+        "asked_words": motion_words(prompt) if asked is None else None,
         "before": trajectory_motion(*before, t, cls),
         "after": trajectory_motion(*after, t, cls),
     }
@@ -147,11 +148,73 @@ def asked_motion(prompt: str, cls: str) -> tuple[str | None, float]:
     from motionphysics.language.captions import prompt_motion_group
 
     asked, similarity = prompt_motion_group(prompt)
+    exclude: tuple[str, ...] = ()
     if asked == "crumbles" and cls != "sand":
-        asked, similarity = prompt_motion_group(prompt, exclude=("crumbles",))
+        exclude = ("crumbles",)
+        asked, similarity = prompt_motion_group(prompt, exclude=exclude)
         if similarity < SECOND_READING_SIMILARITY:
             asked = None
+    if asked is not None and _unlike_its_group(prompt, asked, exclude):
+        asked = None
     return asked, similarity
+
+
+NEUTRAL_CUES = frozenset({"fall", "fast", "slow", "gentle"})
+"""eval's cues that go with any motion group (how, not what): they neither confirm nor
+refute a reading."""
+
+
+def _group_cues() -> dict[str, frozenset[str]]:
+    """Per motion group, eval's motion cues its own phrasings (training and held-out)
+    contain: what a prompt of that group says in eval's words."""
+    global _GROUP_CUES
+    if _GROUP_CUES is None:
+        from motionphysics.language import captions
+        from motionphysics.metrics.adherence import parse_prompt
+
+        held = getattr(captions, "HELD_OUT", {})
+        _GROUP_CUES = {
+            g: frozenset(
+                c["cue"]
+                for p in (*captions.TRAIN[g], *held.get(g, ()))
+                for c in parse_prompt("a ball " + p)["cues"]
+                if "material" not in c["cue"]
+            )
+            for g in captions.GROUPS
+        }
+    return _GROUP_CUES
+
+
+_GROUP_CUES: dict[str, frozenset[str]] | None = None
+
+
+def motion_words(prompt: str) -> list[str]:
+    """The prompt's motion words as eval reads them (its cues, not negated, without the
+    neutral ones and the material words)."""
+    from motionphysics.metrics.adherence import parse_prompt
+
+    return [
+        str(c["words"])
+        for c in parse_prompt(prompt)["cues"]
+        if "material" not in c["cue"] and c["cue"] not in NEUTRAL_CUES
+    ]
+
+
+def _unlike_its_group(prompt: str, group: str, exclude: tuple[str, ...] = ()) -> bool:
+    """Whether the prompt's deciding clause says, in eval's words, a motion none of
+    ``group``'s phrasings says: "a copper rod falls and bends when it hits the floor" is
+    nearest "squashes flat" by its sentence embedding (0.72), but "bends" is no word of a
+    squash. A clause without such words keeps the reading."""
+    from motionphysics.language.captions import prompt_motion_reading
+    from motionphysics.metrics.adherence import parse_prompt
+
+    _, _, clause = prompt_motion_reading(prompt, exclude=exclude)
+    cues = {
+        c["cue"]
+        for c in parse_prompt(clause or "")["cues"]
+        if "material" not in c["cue"] and c["cue"] not in NEUTRAL_CUES and not c["negated"]
+    }
+    return bool(cues) and not (cues & _group_cues()[group])
 
 
 def plain_motion_record(
@@ -161,13 +224,16 @@ def plain_motion_record(
     ``x``/``v`` at times ``t`` of a run without refinement, with eval's adherence and the
     summary lines (:func:`plain_motion_lines`); None when the prompt asks for no motion."""
     asked, similarity = asked_motion(prompt, cls)
-    if asked is None:
+    words = motion_words(prompt)
+    if asked is None and not words:
         return None
     rec: dict[str, Any] = {
         "asked": asked,
         "asked_similarity": float(similarity),
         "simulated": trajectory_motion(x, v, t, cls),
     }
+    if asked is None:
+        rec["asked_words"] = words  # a motion no group holds ("bends", "rolls"): eval's words
     rec["simulated"]["adherence"] = adherence_of(
         prompt, x, v, t, mass=mass, gravity=gravity, floor=floor
     )
@@ -180,6 +246,18 @@ def plain_motion_lines(rec: dict[str, Any]) -> list[str]:
     asked, sim = rec["asked"], rec["simulated"]
     score = (sim.get("adherence") or {}).get("score")
     near = score is not None and score >= NEAR_ADHERENCE
+    if asked is None:
+        # a motion no group holds: eval's adherence to the words is all there is to say
+        ok, verdict = near, "close to what was asked" if near else "not as asked"
+        said = ", ".join(f"'{w}'" for w in rec.get("asked_words") or [])
+        lines = [
+            f"motion asked: {said} (no motion group of the motion prior holds it; eval "
+            "reads the words)",
+            f"  simulated: {_said(sim)} ({verdict})",
+        ]
+        if score is not None:
+            lines.append(f"  motion adherence (eval, 0..1): {score:.2f}")
+        return lines + _advice(ok, sim)
     if sim["group"] == asked:
         ok, verdict = True, "as asked"
     elif near:
@@ -198,30 +276,38 @@ def plain_motion_lines(rec: dict[str, Any]) -> list[str]:
     ]
     if score is not None:
         lines.append(f"  motion adherence (eval, 0..1): {score:.2f}")
+    return lines + _advice(ok, sim)
+
+
+def _advice(ok: bool, sim: dict[str, Any]) -> list[str]:
+    """What moves a run that is not as asked toward the words (nothing when it is)."""
     moved = sim["measures"].get("moved")
     if not ok and moved is not None and moved < STILL:
         # no material makes a body at rest on its ground do anything: refining cannot help
-        lines.append(
+        return [
             f"  it hardly moved (at most {100 * moved:.1f} % of its size): nothing sets it in "
             "motion (it starts on its ground, with no velocity or force); lift it with "
             "`scene.translate`, or give `sim.initial_velocity` or a force"
-        )
-    elif not ok:
-        lines.append(
+        ]
+    if not ok:
+        return [
             "  the estimate's values do not give that motion here: refine toward the words "
             "with `--prior motion --loss lmd` (the embedded prior), or set the `material:` "
             "values yourself"
-        )
-    return lines
+        ]
+    return []
 
 
 def motion_lines(rec: dict[str, Any]) -> list[str]:
     """Summary lines: the motion asked for, and the motion before and after refinement."""
 
     asked = rec.get("asked")
+    words = ", ".join(f"'{w}'" for w in rec.get("asked_words") or [])
     ask = (
         f"{_words(asked)} (the prompt's motion words)"
         if asked is not None
+        else f"{words} (no motion group of the motion prior holds it; eval reads the words)"
+        if words
         else "no motion group the motion prior knows (the prompt names none)"
     )
     lines = [f"motion asked: {ask}"]
