@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 import yaml
 
+from motionphysics.assembly_camera import drop_height
 from motionphysics.cli import main
 
 RUBBER = {"class": "elastic", "density": 1000.0, "E": 3.0e5, "nu": 0.3}
@@ -182,3 +183,34 @@ def test_a_big_object_is_dropped_no_further_than_lands_within_the_clip(tmp_path,
     # it reaches the floor by frame 9 (0.4 of 19 intervals, plus a frame for the contact)
     reached = np.nonzero(z.min(1) < floor["point"][2] + float(traj["dx"]))[0]
     assert reached.size and reached[0] <= 9, z.min(1) - floor["point"][2]
+
+
+def test_objects_the_prompt_drops_fall_together(tmp_path, capsys):
+    # two balls written side by side at the origin's height: the floor goes under both
+    def ball(name, x):
+        return {
+            "name": name,
+            "source": "builtin:sphere",
+            "scale": 0.2,
+            "translate": [x, 0.0, 0.0],
+            "max_particles": 400,
+            "material": dict(RUBBER),
+        }
+
+    data = {
+        "prompt": "Two rubber balls fall onto the floor and bounce.",
+        "objects": [ball("red", -0.2), ball("blue", 0.2)],
+        "sim": {"grid": 20, "frames": 12, "frame_dt": 0.04, "substeps": "auto"},
+        "camera": {"width": 24, "height": 24},
+    }
+    traj, params, run_yaml, out = _run(tmp_path, capsys, data, "two")
+    (floor,) = run_yaml["boundary_conditions"]
+    z = traj["x"][:, :, 2]
+    # their height (0.2 m), capped to land within 40 % of the 0.44 s clip: 0.152 m
+    want = drop_height(0.2, 0.2, 11 * 0.04, 9.8)
+    assert want == pytest.approx(0.5 * 9.8 * (0.4 * 0.44) ** 2)
+    assert float(z[0].min()) - floor["point"][2] == pytest.approx(want, rel=0.05)
+    assert "the prompt asks for a fall ('fall')" in _ground_line(out)
+    oid = traj["object_id"]
+    for i in (0, 1):  # each ball reaches the floor
+        assert z[:, oid == i].min() < floor["point"][2] + float(traj["dx"])
