@@ -745,6 +745,9 @@ def assemble(
         resolution = resolve_simulation(material, cfg, sim_scene)
         for line in resolution.notes:
             warn(line, observer)
+        sag = own_weight_note(material, cfg, _np(sim_scene.particles))
+        if sag:
+            warn(sag, observer)
         provenance = {
             **_provenance(est, res, params_file),
             "clamps": res["clamps"]
@@ -773,6 +776,37 @@ def assemble(
         observer=observer,
         reference_image=ref_np,
         scene_notes=_scene_notes(ground_note, sim_scene, observer, capture),
+    )
+
+
+OWN_WEIGHT_SLUMP = 1.0
+"""An elastic body whose own weight strains it by this much (density x g x height / E)
+slumps under it whatever the simulator does: the run says so, with the size."""
+
+
+def own_weight_note(material, cfg: RunConfig, particles) -> str | None:
+    """One line when the material, at the object's size, slumps under its own weight: a
+    1 m builtin jelly cube (E 5 kPa) strains 2x, sinks to half its height and reads as
+    neither a wobble nor a bounce; the same jelly at 10 cm strains 0.2 and wobbles. It is
+    the physics of a body that large, which the sentence rarely means."""
+    if material.cls not in ("elastic", "foam"):
+        return None
+    E = float(material.values.get("E", 0.0))
+    g = float(np.linalg.norm(np.asarray(cfg.sim.gravity, dtype=np.float64)))
+    p = np.asarray(particles, dtype=np.float64)
+    if not (E > 0 and g > 0 and len(p)):
+        return None
+    down = -np.asarray(cfg.sim.gravity, dtype=np.float64) / g
+    h = float(np.ptp(p @ down))
+    strain = float(material.density) * g * h / E
+    if strain < OWN_WEIGHT_SLUMP:
+        return None
+    return (
+        f"material: at this size ({h:.3g} m tall) its own weight strains the {material.cls} "
+        f"by {100 * strain:.0f} % (density x g x height / E, E {E:.3g} Pa): a body this "
+        "large and this soft slumps under its own weight instead of keeping its shape (the "
+        "physics of its size); `scene.scale` makes it smaller (builtins are 1 m unless "
+        "scaled), `material: {E: ...}` stiffer"
     )
 
 
