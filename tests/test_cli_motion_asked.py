@@ -27,9 +27,12 @@ def _config(prompt: str) -> dict:
     }
 
 
-def _run(tmp_path, capsys, prompt: str):
+def _run(tmp_path, capsys, prompt: str, material: dict | None = None):
+    data = _config(prompt)
+    if material is not None:
+        data["material"] = material
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump(_config(prompt)))
+    cfg.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
     assert main(["run", str(cfg), "--out", str(out)]) == 0
     summary = capsys.readouterr().out
@@ -97,24 +100,14 @@ def test_a_weak_second_reading_is_no_reading(tmp_path, capsys):
     """A paste that "piles up" is nearest "crumbles", which a paste cannot show; without
     it the nearest group is a weak match (a bounce, 0.50): no motion group is claimed,
     and eval's adherence to the words ("piles up") is what the run says."""
-    data = _config("Toothpaste is squeezed out, falls onto the surface and piles up.")
-    data["material"] = {
-        "class": "non_newtonian",
-        "density": 1200,
-        "mu": 1.0,
-        "kappa": 2.0e9,
-        "tau_Y": 100.0,
-        "eta": 0.5,
-        "n": 0.6,
-    }
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump(data))
-    out = tmp_path / "run"
-    assert main(["run", str(cfg), "--out", str(out)]) == 0
-    lines = capsys.readouterr().out.splitlines()
+    paste = {"class": "non_newtonian", "density": 1200, "mu": 1.0, "kappa": 2.0e9}
+    paste.update({"tau_Y": 100.0, "eta": 0.5, "n": 0.6})
+    prompt = "Toothpaste is squeezed out, falls onto the surface and piles up."
+    summary, params, _ = _run(tmp_path, capsys, prompt, paste)
+    lines = summary.splitlines()
     asked = next(s for s in lines if s.startswith("motion asked:"))
     assert asked.startswith("motion asked: 'piles up' (no motion group of the motion prior")
-    motion = json.loads((out / "params.json").read_text())["metrics"]["motion"]
+    motion = params["metrics"]["motion"]
     assert motion["asked"] is None and motion["asked_words"] == ["piles up"]
     score = motion["simulated"]["adherence"]["score"]
     assert f"  motion adherence (eval, 0..1): {score:.2f}" in lines
@@ -123,15 +116,11 @@ def test_a_weak_second_reading_is_no_reading(tmp_path, capsys):
 def test_a_motion_no_group_holds_is_read_in_evals_words(tmp_path, capsys):
     """ "Bends" is nearest "squashes flat" by its sentence embedding (0.72), but it is no
     word of a squash: the run reads the motion as eval's words and claims no group."""
-    data = _config("A copper rod falls and bends when it hits the floor.")
-    data["material"] = {"class": "elastic", "density": 1000, "E": 1.0e6, "nu": 0.3}
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump(data))
-    out = tmp_path / "run"
-    assert main(["run", str(cfg), "--out", str(out)]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    asked = next(s for s in lines if s.startswith("motion asked:"))
+    rubber = {"class": "elastic", "density": 1000, "E": 1.0e6, "nu": 0.3}
+    prompt = "A copper rod falls and bends when it hits the floor."
+    summary, params, _ = _run(tmp_path, capsys, prompt, rubber)
+    asked = next(s for s in summary.splitlines() if s.startswith("motion asked:"))
     assert "squashes flat" not in asked and "'bends'" in asked
-    motion = json.loads((out / "params.json").read_text())["metrics"]["motion"]
+    motion = params["metrics"]["motion"]
     assert motion["asked"] is None and motion["asked_words"] == ["bends"]
     assert any(e.startswith("bends") for e in motion["simulated"]["adherence"]["explanations"])
