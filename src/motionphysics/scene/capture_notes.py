@@ -34,8 +34,9 @@ FLOATER_RATIO = 3.0
 over this many times that of the box holding the central 98 % of them (per axis, the 1st
 to 99th percentiles)."""
 LARGE_SIZE = 3.0
-"""A simulated body over this many metres across (its central 98 %), read from a capture
-file, gets a line on its units."""
+"""A simulated body over this many metres across (its central 98 %), read from a file (a
+capture or a mesh: an STL written in millimetres is 1000x too large), gets a line on its
+units."""
 _AXIS = re.compile(r"(?:vertical|up)[ _-]*(?:axis|direction)?\s*[:=]\s*([+-]?[xyz])\b", re.I)
 
 
@@ -108,7 +109,7 @@ def capture_notes(scene_cfg, points: np.ndarray) -> list[str]:
             f"all, so its cells are that much coarser; `scene.crop: {_fmt(crop)}` discards "
             "them (or `scene.region` simulates part of the capture and keeps the rest still)"
         )
-    if Path(source).suffix.lower() == ".ply" and core > LARGE_SIZE:
+    if core > LARGE_SIZE:  # (a file: a builtin returned above; an STL in mm is 1000x)
         notes.append(
             f"scene: the body simulated is {core:.3g} m across (the file's units read as "
             "metres, and everything in it simulated as one material); `scene.scale` sets "
