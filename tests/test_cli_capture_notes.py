@@ -25,7 +25,7 @@ from motionphysics.scene.capture_notes import header_up_axis
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 TABLE, DONUT = REAL / "yashica_t4_table.ply", REAL / "donut.ply"
-pytestmark = pytest.mark.skipif(
+needs_captures = pytest.mark.skipif(
     not (TABLE.is_file() and DONUT.is_file()), reason="real captures in shared/data/real absent"
 )
 JELLY = {"class": "elastic", "density": 1050.0, "E": 5000.0, "nu": 0.45}
@@ -49,6 +49,7 @@ def _simulate(tmp_path, capsys, scene: dict, name: str):
     return lines, params["scene"].get("capture")
 
 
+@needs_captures
 def test_the_table_capture_as_it_is_is_told_its_axis_floaters_and_size(tmp_path, capsys):
     lines, recorded = _simulate(tmp_path, capsys, {"source": str(TABLE)}, "plain")
     assert len(lines) == 3, lines
@@ -71,6 +72,7 @@ def test_the_table_capture_as_it_is_is_told_its_axis_floaters_and_size(tmp_path,
     assert not any("header says" in s or "m across" in s for s in lines), lines
 
 
+@needs_captures
 def test_a_region_run_and_a_small_object_capture_are_told_nothing(tmp_path, capsys):
     region = {
         "source": str(TABLE),
