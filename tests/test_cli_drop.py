@@ -74,7 +74,7 @@ def test_the_papers_duck_hits_the_ground_and_bounces_back(tmp_path, capsys):
     assert drop == pytest.approx(max(height, 0.5 * 0.3), rel=0.05)
     line = _ground_line(out)
     assert "under the scene's lowest point: the prompt asks for a fall ('hits the ground')" in line
-    assert "`scene.translate` for another height" in line
+    assert "`scene.translate` for another height" in line and "less than its height" not in line
     assert params["scene"]["ground"] == line.replace("ground:    ", "ground: ", 1)
     # it falls the whole way onto the floor, stays above it, and rises again
     lowest = z.min(1)
@@ -180,6 +180,7 @@ def test_a_big_object_is_dropped_no_further_than_lands_within_the_clip(tmp_path,
     z = traj["x"][:, :, 2]
     drop = float(z[0].min()) - floor["point"][2]
     assert drop == pytest.approx(0.5 * 9.8 * (0.4 * 19 * 0.04) ** 2, rel=0.02)
+    assert "less than its height, to land within the first 40 % of the clip" in _ground_line(out)
     # it reaches the floor by frame 9 (0.4 of 19 intervals, plus a frame for the contact)
     reached = np.nonzero(z.min(1) < floor["point"][2] + float(traj["dx"]))[0]
     assert reached.size and reached[0] <= 9, z.min(1) - floor["point"][2]

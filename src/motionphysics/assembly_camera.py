@@ -125,10 +125,17 @@ def default_ground(
         duration = max(int(cfg.sim.frames) - 1, 1) * float(cfg.sim.frame_dt)
         drop = drop_height(h, size, duration, gn)
         z = float(lowest_z) - drop
+        capped = drop < drop_height(h, size) * (1 - 1e-9)
+        why = (
+            f"; less than its height, to land within the first {100 * IMPACT_BY:.0f} % of "
+            "the clip (more `sim.frames` for a higher drop)"
+            if capped
+            else ""
+        )
         where = (
             f"z = {z:.4g}, {drop:.3g} m under the scene's lowest point: the prompt asks for "
             f"a fall ('{words}'), so the object is dropped from there instead of standing "
-            "on the floor (`boundary_conditions` or `scene.translate` for another height)"
+            f"on the floor{why} (`boundary_conditions` or `scene.translate` for another height)"
         )
     floor = SurfaceCollider(
         type="surface_collider",
