@@ -9,7 +9,10 @@ size copy :func:`tiny_config_data` and edit it.
 from __future__ import annotations
 
 import copy
+import json
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -115,3 +118,42 @@ def restore_sigint() -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@dataclass
+class CliRun:
+    """A run a test made through the command line with a config file it wrote."""
+
+    rc: int
+    out: str
+    err: str
+    dir: Path
+
+    @property
+    def params(self) -> dict:
+        return json.loads((self.dir / "params.json").read_text())
+
+    def trajectory(self) -> dict:
+        import numpy as np
+
+        return dict(np.load(self.dir / "trajectory.npz"))
+
+
+@pytest.fixture
+def cli_run(tmp_path, capsys) -> Callable[..., CliRun]:
+    """``cli_run(data, name, command="simulate", *flags)``: write ``data`` as NAME.yaml in
+    the test's folder, run ``motionphysics COMMAND NAME.yaml --out NAME FLAGS`` as a user
+    would, and return its exit status, stdout, stderr and run folder."""
+    import yaml
+
+    from motionphysics.cli import main
+
+    def run(data: dict, name: str, command: str = "simulate", *flags: str) -> CliRun:
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        capsys.readouterr()
+        rc = main([command, str(path), "--out", str(tmp_path / name), *flags])
+        io = capsys.readouterr()
+        return CliRun(rc, io.out, io.err, tmp_path / name)
+
+    return run

@@ -12,15 +12,12 @@ through ``motionphysics simulate CONFIG``: the shared table capture was simulate
 from __future__ import annotations
 
 import ast
-import json
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
-from motionphysics.cli import main
 from motionphysics.scene.capture_notes import header_up_axis
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
@@ -31,7 +28,7 @@ needs_captures = pytest.mark.skipif(
 JELLY = {"class": "elastic", "density": 1050.0, "E": 5000.0, "nu": 0.45}
 
 
-def _simulate(tmp_path, capsys, scene: dict, name: str):
+def _simulate(cli_run, scene: dict, name: str):
     data = {
         "scene": {"max_particles": 1500, **scene},
         "prompt": "The camera is made of jelly and wobbles.",
@@ -39,19 +36,15 @@ def _simulate(tmp_path, capsys, scene: dict, name: str):
         "sim": {"grid": 16, "frames": 1, "frame_dt": 0.01, "substeps": "auto"},
         "camera": {"width": 16, "height": 16},
     }
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    capsys.readouterr()
-    assert main(["simulate", str(path), "--out", str(tmp_path / name)]) == 0
-    err = capsys.readouterr().err
-    params = json.loads((tmp_path / name / "params.json").read_text())
-    lines = [s for s in err.splitlines() if s.startswith("warning: scene: ")]
-    return lines, params["scene"].get("capture")
+    run = cli_run(data, name)
+    assert run.rc == 0
+    lines = [s for s in run.err.splitlines() if s.startswith("warning: scene: ")]
+    return lines, run.params["scene"].get("capture")
 
 
 @needs_captures
-def test_the_table_capture_as_it_is_is_told_its_axis_floaters_and_size(tmp_path, capsys):
-    lines, recorded = _simulate(tmp_path, capsys, {"source": str(TABLE)}, "plain")
+def test_the_table_capture_as_it_is_is_told_its_axis_floaters_and_size(cli_run):
+    lines, recorded = _simulate(cli_run, {"source": str(TABLE)}, "plain")
     assert len(lines) == 3, lines
     axis, floaters, size = lines
     assert "header says 'Vertical axis: y'" in axis and "`scene.up: y` or `-y`" in axis
@@ -64,16 +57,16 @@ def test_the_table_capture_as_it_is_is_told_its_axis_floaters_and_size(tmp_path,
 
     # the crop the warning gives, as the user would paste it: the floaters' line goes
     crop = ast.literal_eval(re.search(r"`scene\.crop: (\[[^\]]+\])`", floaters).group(1))
-    lines, _ = _simulate(tmp_path, capsys, {"source": str(TABLE), "crop": crop}, "cropped")
+    lines, _ = _simulate(cli_run, {"source": str(TABLE), "crop": crop}, "cropped")
     assert len(lines) == 2 and not any("floaters" in s for s in lines), lines
     # the axis the header names, and a scale: nothing left to say
     scene = {"source": str(TABLE), "up": "-y", "scale": 0.04}
-    lines, recorded = _simulate(tmp_path, capsys, scene, "scaled")
+    lines, recorded = _simulate(cli_run, scene, "scaled")
     assert not any("header says" in s or "m across" in s for s in lines), lines
 
 
 @needs_captures
-def test_a_region_run_and_a_small_object_capture_are_told_nothing(tmp_path, capsys):
+def test_a_region_run_and_a_small_object_capture_are_told_nothing(cli_run):
     region = {
         "source": str(TABLE),
         "up": [0.03413075, -0.75571442, -0.65401132],
@@ -81,8 +74,8 @@ def test_a_region_run_and_a_small_object_capture_are_told_nothing(tmp_path, caps
         "translate": [0.0172, -0.0344, 0.1491],
         "region": {"box": [[-0.062, -0.031, 0.0012], [0.062, 0.031, 0.07]]},
     }
-    assert _simulate(tmp_path, capsys, region, "region") == ([], None)
-    assert _simulate(tmp_path, capsys, {"source": str(DONUT)}, "donut") == ([], None)
+    assert _simulate(cli_run, region, "region") == ([], None)
+    assert _simulate(cli_run, {"source": str(DONUT)}, "donut") == ([], None)
 
 
 @pytest.mark.parametrize(

@@ -4,18 +4,13 @@ in metres. The same crate scaled to metres says nothing."""
 
 from __future__ import annotations
 
-import json
-
 import pytest
-import yaml
-
-from motionphysics.cli import main
 
 WOOD = {"class": "elastic", "density": 600.0, "E": 1.0e7, "nu": 0.3}
 
 
 @pytest.mark.parametrize("scale, told", [(1.0, True), (0.001, False)])
-def test_a_crate_in_millimetres_is_told_its_size(tmp_path, capsys, scale, told):
+def test_a_crate_in_millimetres_is_told_its_size(tmp_path, cli_run, scale, told):
     trimesh = pytest.importorskip("trimesh")
     stl = tmp_path / "crate_mm.stl"
     trimesh.creation.box(extents=[400.0, 300.0, 250.0]).export(stl)
@@ -26,13 +21,11 @@ def test_a_crate_in_millimetres_is_told_its_size(tmp_path, capsys, scale, told):
         "sim": {"grid": 12, "frames": 1, "frame_dt": 0.01, "substeps": "auto"},
         "camera": {"width": 16, "height": 16},
     }
-    path = tmp_path / "crate.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    capsys.readouterr()
-    assert main(["simulate", str(path), "--out", str(tmp_path / "run")]) == 0
-    lines = [s for s in capsys.readouterr().err.splitlines() if "m across" in s]
+    run = cli_run(data, "crate")
+    assert run.rc == 0
+    lines = [s for s in run.err.splitlines() if "m across" in s]
     assert bool(lines) == told, lines
-    capture = json.loads((tmp_path / "run" / "params.json").read_text())["scene"].get("capture")
+    capture = run.params["scene"].get("capture")
     if told:
         assert "the body simulated is 400 m across (the file's units read as metres" in lines[0]
         assert capture == lines[0].removeprefix("warning: ")

@@ -8,20 +8,16 @@ viscosity that oozes over the clip."""
 
 from __future__ import annotations
 
-import json
 import re
 
 import numpy as np
 import pytest
-import yaml
-
-from motionphysics.cli import main
 
 JELLY = {"class": "elastic", "density": 1050.0, "E": 5000.0, "nu": 0.45}
 
 
 @pytest.mark.parametrize("scale, slumps", [(1.0, True), (0.1, False)])
-def test_a_jelly_cube_is_told_when_its_size_makes_it_slump(tmp_path, capsys, scale, slumps):
+def test_a_jelly_cube_is_told_when_its_size_makes_it_slump(cli_run, scale, slumps):
     data = {
         "prompt": "A jelly cube wobbles.",
         "scene": {"source": "builtin:cube", "scale": scale, "max_particles": 800},
@@ -29,26 +25,18 @@ def test_a_jelly_cube_is_told_when_its_size_makes_it_slump(tmp_path, capsys, sca
         "sim": {"grid": 16, "frames": 8, "frame_dt": 0.04, "substeps": "auto"},
         "camera": {"width": 16, "height": 16},
     }
-    path = tmp_path / "jelly.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    capsys.readouterr()
-    assert main(["simulate", str(path), "--out", str(tmp_path / "run")]) == 0
-    err = capsys.readouterr().err
-    lines = [s for s in err.splitlines() if "its own weight strains" in s]
-    assert bool(lines) == slumps, err
+    run = cli_run(data, "jelly")
+    assert run.rc == 0
+    lines = [s for s in run.err.splitlines() if "its own weight strains" in s]
+    assert bool(lines) == slumps, run.err
     if slumps:
         (line,) = lines
-        strain = (
-            1050
-            * 9.8
-            * float(np.ptp(np.load(tmp_path / "run" / "trajectory.npz")["x"][0, :, 2]))
-            / 5000
-        )
-        assert f"by {100 * strain:.0f} %" in line
+        height = float(np.ptp(run.trajectory()["x"][0, :, 2]))
+        assert f"by {100 * 1050 * 9.8 * height / 5000:.0f} %" in line
         assert "`scene.scale`" in line and "builtins are 1 m unless scaled" in line
 
 
-def _run_honey(tmp_path, capsys, name: str, mu: float):
+def _run_honey(cli_run, name: str, mu: float):
     data = {
         "prompt": "A block of thick honey oozes slowly.",
         "scene": {"source": "builtin:cube", "scale": 1.0, "max_particles": 800},
@@ -56,23 +44,19 @@ def _run_honey(tmp_path, capsys, name: str, mu: float):
         "sim": {"grid": 16, "frames": 20, "frame_dt": 0.04, "substeps": "auto"},
         "camera": {"width": 16, "height": 16},
     }
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    capsys.readouterr()
-    assert main(["run", str(path), "--out", str(tmp_path / name)]) == 0
-    io = capsys.readouterr()
-    params = json.loads((tmp_path / name / "params.json").read_text())
-    return [s for s in io.err.splitlines() if "viscous time" in s], params
+    run = cli_run(data, name, "run")
+    assert run.rc == 0
+    return [s for s in run.err.splitlines() if "viscous time" in s], run.params
 
 
-def test_a_metre_of_honey_asked_to_ooze_is_told_the_viscosity_an_ooze_needs(tmp_path, capsys):
+def test_a_metre_of_honey_asked_to_ooze_is_told_the_viscosity_an_ooze_needs(cli_run):
     # honey (30 Pa s) at 1 m: viscous time mu / (rho g h) = 2 ms against a 0.76 s clip, so
     # it runs out like water; the line names the mu that oozes over the clip, and that mu
     # does ooze (and says nothing)
-    lines, params = _run_honey(tmp_path, capsys, "honey", 30.0)
+    lines, params = _run_honey(cli_run, "honey", 30.0)
     assert len(lines) == 1 and "runs out within the first frames rather than oozing" in lines[0]
     assert params["metrics"]["motion"]["simulated"]["group"] != "oozes"
     need = float(re.search(r"needs mu of about ([0-9.e+]+) Pa s", lines[0]).group(1))
     assert 200 < need < 1000  # 0.05 x 1420 x 9.8 x ~0.9 m x 0.76 s
-    lines, params = _run_honey(tmp_path, capsys, "thick", need)
+    lines, params = _run_honey(cli_run, "thick", need)
     assert lines == [] and params["metrics"]["motion"]["simulated"]["group"] == "oozes"

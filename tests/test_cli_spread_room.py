@@ -10,28 +10,18 @@ trajectory.
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-import yaml
-
-from motionphysics.cli import main
 
 WATER = {"class": "newtonian", "density": 1000.0, "mu": 0.001, "kappa": 2.0e6}
 RUBBER = {"class": "elastic", "density": 1000.0, "E": 3.0e5, "nu": 0.3}
 SAND = {"class": "sand", "density": 1600.0, "theta_fric": 33.0}
 
 
-def _simulate(tmp_path, capsys, data: dict, name: str):
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    capsys.readouterr()
-    assert main(["simulate", str(path), "--out", str(tmp_path / name)]) == 0
-    io = capsys.readouterr()
-    params = json.loads((tmp_path / name / "params.json").read_text())
-    traj = dict(np.load(tmp_path / name / "trajectory.npz"))
-    return params, traj, io.out, io.err
+def _simulate(cli_run, data: dict, name: str):
+    run = cli_run(data, name)
+    assert run.rc == 0
+    return run.params, run.trajectory(), run.out, run.err
 
 
 def _drop(material: dict, frames: int = 2, **sim) -> dict:
@@ -45,11 +35,9 @@ def _drop(material: dict, frames: int = 2, **sim) -> dict:
 
 
 @pytest.mark.parametrize("material, spread", [(WATER, 3.0), (SAND, 2.0)])
-def test_a_material_that_spreads_gets_room_at_the_same_cell_size(
-    tmp_path, capsys, material, spread
-):
-    solid, *_ = _simulate(tmp_path, capsys, _drop(RUBBER), "solid")
-    params, traj, out, _ = _simulate(tmp_path, capsys, _drop(material), "spreads")
+def test_a_material_that_spreads_gets_room_at_the_same_cell_size(cli_run, material, spread):
+    solid, *_ = _simulate(cli_run, _drop(RUBBER), "solid")
+    params, traj, out, _ = _simulate(cli_run, _drop(material), "spreads")
     a, b = solid["scene"], params["scene"]
     assert b["dx"] == pytest.approx(a["dx"], rel=1e-12)  # the same cells ...
     assert b["grid_dims"][2] == a["grid_dims"][2]  # ... along gravity: as fitted
@@ -67,9 +55,9 @@ def test_a_material_that_spreads_gets_room_at_the_same_cell_size(
     assert np.allclose(shift, np.round(shift), atol=1e-4)
 
 
-def test_a_water_ball_splashes_out_without_meeting_a_wall(tmp_path, capsys):
+def test_a_water_ball_splashes_out_without_meeting_a_wall(cli_run):
     data = _drop(WATER, frames=16)
-    params, traj, out, err = _simulate(tmp_path, capsys, data, "splash")
+    params, traj, out, err = _simulate(cli_run, data, "splash")
     assert "reached the domain wall" not in err
     x = traj["x"].astype(np.float64)
     width0 = np.ptp(x[0, :, 0])
@@ -80,11 +68,11 @@ def test_a_water_ball_splashes_out_without_meeting_a_wall(tmp_path, capsys):
     assert (x[:, :, :2] > lo[:2] + 4 * dx).all() and (x[:, :, :2] < hi[:2] - 4 * dx).all()
 
 
-def test_a_given_domain_and_a_solid_are_left_as_they_are(tmp_path, capsys):
+def test_a_given_domain_and_a_solid_are_left_as_they_are(cli_run):
     given = _drop(WATER, domain=[[-0.5, -0.5, -0.3], [0.5, 0.5, 0.4]])
-    params, _, out, _ = _simulate(tmp_path, capsys, given, "given")
+    params, _, out, _ = _simulate(cli_run, given, "given")
     assert "domain" not in params["scene"] and not any(
         s.startswith("domain:") for s in out.splitlines()
     )
-    params, _, out, _ = _simulate(tmp_path, capsys, _drop(RUBBER), "rubber")
+    params, _, out, _ = _simulate(cli_run, _drop(RUBBER), "rubber")
     assert "domain" not in params["scene"]
