@@ -828,9 +828,11 @@ def ooze_note(material, cfg: RunConfig, particles) -> str | None:
     the line names the viscosity an ooze over the clip needs."""
     if material.cls != "newtonian":
         return None
-    from motionphysics.priors.motion_summary import asked_motion
+    from motionphysics.language.captions import prompt_motion_group
 
-    if asked_motion(cfg.prompt, material.cls)[0] != "oozes":
+    # (the raw reading: a Newtonian fluid can show "oozes"; assembly does not import
+    # priors, whose class-aware reading asked_motion would add nothing here)
+    if prompt_motion_group(cfg.prompt)[0] != "oozes":
         return None
     mu = float(material.values.get("mu", 0.0))
     g = float(np.linalg.norm(np.asarray(cfg.sim.gravity, dtype=np.float64)))
