@@ -135,7 +135,9 @@ def test_phrasing_sets_are_disjoint_and_cover_every_group():
 
 @pytest.mark.parametrize("held_out", [False, True])
 def test_caption_uses_only_its_groups_phrases(held_out):
-    table = HELD_OUT if held_out else TRAIN
+    from motionphysics.language.captions import training_phrasings
+
+    table = HELD_OUT if held_out else {g: training_phrasings(g) for g in GROUPS}
     up = 0.2 * np.sin(np.linspace(0, np.pi, 11))
     m = motion_measures(_traj(_fall_then(up)))
     rng = np.random.default_rng(3)
@@ -259,6 +261,23 @@ def test_the_motion_reading_skips_event_clauses_and_finds_more_verbs(prompt, gro
     from motionphysics.language.captions import prompt_motion_group
 
     assert prompt_motion_group(prompt)[0] == group
+
+
+def test_paraphrases_are_new_and_keep_the_held_out_words_unseen():
+    """The training captions' paraphrases repeat no phrasing and none of the distinctive
+    words of the held-out phrasings the discrimination is measured with."""
+    from motionphysics.language.captions import PARAPHRASES, READING_EXTRA, training_phrasings
+
+    assert set(PARAPHRASES) == set(GROUPS)
+    every = [p for g in GROUPS for p in training_phrasings(g)]
+    assert len(set(every)) == len(every)
+    assert not set(every) & {p for g in GROUPS for p in (*HELD_OUT[g], *READING_EXTRA[g])}
+    unseen = ("feebl", "tiny bit", "gelatin", "trembl", "splatter", "spill", "syrup", "goo",
+              "holds its form", "perfectly", "disintegrat", "pieces", "flattened", "deforms")  # fmt: skip
+    for p in every:
+        assert not any(w in p for w in unseen), p
+    for g in GROUPS:
+        assert len(training_phrasings(g)) >= 11
 
 
 def test_reading_phrasings_never_caption_a_training_clip():

@@ -221,3 +221,50 @@ def test_clip_features_puts_the_rest_first_and_resamples_in_time():
     c0z = float(rest[:, 2].mean())
     assert full[0, IDX["height"]] == pytest.approx(1.0)
     assert full[-1, IDX["height"]] == pytest.approx(1.0 - 0.16 / c0z)
+
+
+def test_the_last_frame_reads_the_measures_the_captions_are_written_from():
+    """Channels 13-18 on a hand-made bounce with a wobbling squash: their last frame equals
+    ``motion_measures`` of the same trajectory (the captions' rebound from the first
+    impact, peak shape change, flattest extent, widest spread, wobble count), and the
+    speed channel is the Froude speed of the position differences."""
+    from motionphysics.priors.motion_data import motion_measures
+
+    rest = _cloud(n=400, extent=(0.2, 0.2, 0.2), centre=(0.0, 0.0, 0.6))
+    scene = MotionScene(rest=rest, ground=0.0, gravity=(0.0, 0.0, -9.8))
+    c0 = rest.mean(0)
+    T = 16
+    t = torch.arange(T, dtype=torch.float64) * 0.05
+    # centroid: falls 0.4 m by frame 5, rises 0.12 m by frame 9, falls again, settles
+    h = torch.tensor([0, -.05, -.12, -.2, -.3, -.4, -.34, -.3, -.285, -.28, -.3, -.35,
+                      -.4, -.4, -.4, -.4], dtype=torch.float64)  # fmt: skip
+    # a vertical squash that swings: 0, 10 %, 2 %, 8 %, 3 % ... of the height
+    sq = [0, 0, 0, 0, 0, 0.10, 0.02, 0.08, 0.03, 0.05, 0.04, 0.04, 0.06, 0.03, 0.03, 0.03]
+    xs = []
+    for k in range(T):
+        s = 1.0 - sq[k]
+        scale = torch.tensor([1 / math.sqrt(s), 1 / math.sqrt(s), s], dtype=torch.float64)
+        xs.append((rest - c0) * scale + c0 + torch.tensor([0.0, 0.0, float(h[k])]))
+    x = torch.stack(xs)
+    F = torch.eye(3, dtype=torch.float64).expand(T, 400, 3, 3)
+    f = frame_features(x, F, t, scene)
+    v = np.gradient(x.numpy(), t.numpy(), axis=0)
+    m = motion_measures({"x": x.numpy(), "v": v, "t": t.numpy()})
+    assert m["rebound"] > 0.2 and m["wobble"] >= 2  # the trajectory shows what it tests
+    assert float(f[-1, IDX["impact_rebound"]]) == pytest.approx(m["rebound"], rel=1e-9)
+    assert float(f[-1, IDX["peak_deform"]]) == pytest.approx(
+        math.log(LOG_FLOOR + m["max_deform"]), abs=1e-6
+    )
+    assert float(f[-1, IDX["wobbles"]]) == m["wobble"]
+    # running values: no rebound before the impact, peaks never fall back
+    assert float(f[:6, IDX["impact_rebound"]].abs().max()) == 0.0
+    for name in ("peak_deform", "peak_spread"):
+        assert bool((f[1:, IDX[name]] >= f[:-1, IDX[name]] - 1e-12).all()), name
+    assert bool((f[1:, IDX["low_vertical"]] <= f[:-1, IDX["low_vertical"]] + 1e-12).all())
+    assert float(f[-1, IDX["low_vertical"]]) == pytest.approx(math.log(0.9), abs=1e-9)
+    assert float(f[-1, IDX["peak_spread"]]) == pytest.approx(-0.5 * math.log(0.9), abs=1e-9)
+    L = float((rest.max(0).values - rest.min(0).values).max())
+    step = float((x[4] - x[3]).norm(dim=-1).mean()) / 0.05
+    assert float(f[4, IDX["speed"]]) == pytest.approx(
+        math.log(LOG_FLOOR + step / math.sqrt(G0 * L)), rel=1e-9
+    )

@@ -216,8 +216,9 @@ def register(subparsers) -> None:
         type=float,
         default=0.5,
         metavar="W",
-        help="weight of the caption-contrast hinge (own-group prompt must denoise better than "
-        "another group's, at the same noise); 0 = plain denoising",
+        help="weight of the caption contrast (a cross-entropy over the motion groups: the "
+        "clip's own group's prompt must denoise it best, at the same noise); 0 = plain "
+        "denoising",
     )
     t.set_defaults(func=_train)
 

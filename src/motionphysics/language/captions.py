@@ -9,8 +9,9 @@ claim). Each group's rule is a conjunction of inequalities on the measures, and 
 groups exclude one another, so a caption can never say "bounces high" about a clip
 that stayed down, "keeps its shape" about one that flattened, and so on.
 
-Phrasings come in two disjoint sets: ``TRAIN`` (used to caption training clips) and
-``HELD_OUT`` (never used in training: the discrimination measurement uses them).
+Phrasings come in two disjoint sets: ``TRAIN`` with ``PARAPHRASES`` (used to caption
+training clips, :func:`training_phrasings`) and ``HELD_OUT`` (never used in training: the
+discrimination measurement uses them).
 Material nouns follow the clip's class (a rubber ball, a lump of clay, honey...),
 object nouns its shape.
 
@@ -30,6 +31,7 @@ __all__ = [
     "HELD_OUT",
     "TRAIN",
     "OPPOSITE",
+    "PARAPHRASES",
     "caption_clip",
     "contrast_prompt",
     "firmness",
@@ -38,6 +40,7 @@ __all__ = [
     "object_noun",
     "prompt_motion_group",
     "prompt_motion_reading",
+    "training_phrasings",
 ]
 
 GROUPS = (
@@ -122,6 +125,88 @@ HELD_OUT: dict[str, tuple[str, ...]] = {
     "crumbles": ("disintegrates into a pile", "falls to pieces in a mound"),
     "squashes_flat": ("gets flattened and stays that way", "deforms into a flat shape"),
 }
+
+PARAPHRASES: dict[str, tuple[str, ...]] = {
+    "bounces_high": (
+        "bounces up high",
+        "springs back into the air",
+        "rebounds high off the floor",
+        "bounds back up",
+        "leaps up again after landing",
+        "bounces back almost to where it started",
+        "shoots back up off the ground",
+    ),
+    "barely_bounces": (
+        "bounces a little and stops",
+        "makes a small hop",
+        "rebounds only slightly",
+        "lands with a soft little bounce",
+        "bounces weakly once",
+        "comes up only a short way after landing",
+    ),
+    "wobbles": (
+        "wobbles back and forth",
+        "jiggles and wobbles",
+        "sways and jiggles after landing",
+        "quivers like jelly",
+        "shudders and wobbles in place",
+        "jiggles back into shape",
+    ),
+    "splashes": (
+        "splashes everywhere",
+        "splashes onto the floor",
+        "spreads out into a wide puddle",
+        "gushes outward across the floor",
+        "flows out fast and thin",
+        "sloshes outward into a puddle",
+    ),
+    "oozes": (
+        "oozes out gradually",
+        "seeps outward slowly",
+        "slowly slumps into a thick puddle",
+        "flows like honey",
+        "oozes like molasses",
+        "sluggishly sags and spreads",
+    ),
+    "keeps_shape": (
+        "stays rigid",
+        "does not change shape",
+        "lands and stays whole",
+        "stays hard and undeformed",
+        "remains unchanged after landing",
+        "lands like a rock",
+    ),
+    "crumbles": (
+        "crumbles apart",
+        "collapses into a heap of grains",
+        "crumbles like dry sand",
+        "slumps into a sandy mound",
+        "breaks up into loose grains",
+        "falls apart into a heap",
+    ),
+    "squashes_flat": (
+        "squashes flat",
+        "is crushed into a pancake",
+        "squashes down and stays squashed",
+        "flattens permanently",
+        "splats and stays flat",
+        "gets squished flat and never recovers",
+    ),
+}
+"""More training captions of each group (paraphrase augmentation, motion prior features
+version 3): everyday words for the same motions, so that the prior learns the motion from
+more than the six phrasings of :data:`TRAIN`. Written without the distinctive words of
+:data:`HELD_OUT` (no "feebly", "tiny bit", "gelatin", "trembles", "splatters", "spills",
+"syrup", "goo", "holds its form", "perfectly solid", "disintegrates", "pieces",
+"flattened", "deforms"), which stay unseen in training. Captions only: prompts are read
+(:func:`prompt_motion_reading`) from :data:`TRAIN`, :data:`HELD_OUT` and
+:data:`READING_EXTRA` as before."""
+
+
+def training_phrasings(group: str) -> tuple[str, ...]:
+    """Every phrasing a training clip of ``group`` may be captioned with."""
+    return (*TRAIN[group], *PARAPHRASES[group])
+
 
 GROUP_CLASS: dict[str, str] = {
     "bounces_high": "elastic",
@@ -350,8 +435,10 @@ def caption_clip(
     m = dict(measures)
     m["granular"] = 1.0 if cls == "sand" else 0.0
     group = motion_group(m)
-    table = HELD_OUT if held_out else TRAIN
-    phrases = table[group] if group is not None else NEUTRAL
+    if group is None:
+        phrases: Sequence[str] = NEUTRAL
+    else:
+        phrases = HELD_OUT[group] if held_out else training_phrasings(group)
     phrase = phrases[int(rng.integers(len(phrases)))]
     obj = object_noun(shape, int(rng.integers(4)))
     if with_material is None:

@@ -37,7 +37,12 @@ from torch import Tensor, nn
 from motionphysics.errors import UserInputError
 from motionphysics.language.text import TEXT_DIM, sentence_embeddings
 from motionphysics.priors.base import TextEmbeddings, VideoPrior
-from motionphysics.priors.motion_features import NUM_FEATURES, MotionScene, clip_features
+from motionphysics.priors.motion_features import (
+    FEATURE_NAMES,
+    NUM_FEATURES,
+    MotionScene,
+    clip_features,
+)
 from motionphysics.runtime import single_thread
 
 __all__ = [
@@ -196,7 +201,21 @@ class MotionPrior(VideoPrior):
         num_frames: int = 16,
         device: str = "cpu",
         meta: dict[str, Any] | None = None,
+        feature_names: tuple[str, ...] | list[str] | None = None,
     ):
+        names = tuple(feature_names) if feature_names is not None else None
+        if names is None:
+            names = FEATURE_NAMES[: int(torch.as_tensor(mean).shape[0])]
+        unknown = [n for n in names if n not in FEATURE_NAMES]
+        if unknown or len(names) != int(torch.as_tensor(mean).shape[0]):
+            raise UserInputError(
+                f"prior motion: the weights were trained on features {list(names)}; "
+                f"this version computes {list(FEATURE_NAMES)} (retrain them with "
+                "`motionphysics prior train`)"
+            )
+        self.feature_names = names
+        """The channels of :func:`clip_features` this prior was trained on, in order."""
+        self._channels = [FEATURE_NAMES.index(n) for n in names]
         self.device = torch.device(device)
         self.dtype = torch.float32
         self.net = net.to(self.device).eval()
@@ -237,6 +256,7 @@ class MotionPrior(VideoPrior):
             num_frames=cfg["num_frames"],
             device=device,
             meta=ck.get("meta"),
+            feature_names=cfg.get("features"),
         )
 
     # ---- text ------------------------------------------------------------------------
@@ -265,7 +285,10 @@ class MotionPrior(VideoPrior):
         rest = sc.rest.to(xs) if offset is None else sc.rest.to(xs) + offset.to(xs)
         times = torch.as_tensor(frame_indices, dtype=torch.float64) * float(sc.frame_dt)
         scene = MotionScene(rest=rest, ground=sc.ground, gravity=tuple(sc.gravity))
-        return clip_features(xs, Fs, times, scene, self.num_frames)
+        f = clip_features(xs, Fs, times, scene, self.num_frames)
+        if len(self._channels) == f.shape[1]:
+            return f
+        return f[:, self._channels]
 
     def encode_states(
         self,

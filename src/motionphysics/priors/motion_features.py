@@ -42,8 +42,37 @@ index  name             meaning
 11     gravity          |g| / g0 (constant over a clip)
 12     rebound          (h(c) - m) / max(h(c0) - m, 0.05 L), m the lowest centroid
                         height so far: how far the centroid has risen again since its
-                        lowest point, over the fall before it (the captions' rebound)
+                        lowest point, over the fall before it
+13     peak_deform      log(0.003 + max over the frames so far of D / L), D the mean
+                        distance of the particles from the best rigid motion of the
+                        rest state (the captions' ``max_deform``; ``shape`` is the rms
+                        distance at this frame)
+14     low_vertical     the smallest ``vertical`` so far (how flat it got at its
+                        flattest: the captions' ``min_height``)
+15     peak_spread      the largest ``spread`` so far (the captions' ``max_spread``)
+16     speed            log(0.003 + u / sqrt(g0 L)), u the mean particle speed between
+                        this observed frame and the one before [m/s] (the first frame:
+                        between it and the next); the Froude speed of the captions'
+                        ``late_speed``
+17     impact_rebound   the rebound ratio of the frames so far measured as
+                        ``metrics.physical`` measures it: from the FIRST impact (the
+                        first local minimum of h(c) at least half as deep below the
+                        highest point before it as the deepest point so far), its
+                        largest rise after it over the fall before it; 0 while no
+                        fall of 3 % of the rest vertical extent was seen (the
+                        captions' ``rebound``; piecewise in the choice of the impact
+                        frame, differentiable in the heights)
+18     wobbles          how many times the deformation D / L has reversed by more than
+                        0.008 since it first exceeded 0.005 (the captions' ``wobble``
+                        count; a step function: no gradient)
 =====  ===============  =============================================================
+
+Channels 13-18 (``FEATURES_VERSION`` 3) carry each measure the captions are written from
+(``motion_data.motion_measures``) as its value over the frames seen so far, so the last
+frame reads the measure itself: a classifier of the motion group needs no more than
+the features (channels 0-12 alone held the running value, not the peaks the caption
+rules threshold). A prior keeps the channels it was trained on (its checkpoint names
+them): a 13-channel prior reads channels 0-12.
 
 :func:`clip_features` turns the observed frames at arbitrary times (the supervised
 frames of a run, or a training clip's frames) into the prior's fixed grid: the rest
@@ -86,14 +115,28 @@ FEATURE_NAMES = (
     "time",
     "gravity",
     "rebound",
+    "peak_deform",
+    "low_vertical",
+    "peak_spread",
+    "speed",
+    "impact_rebound",
+    "wobbles",
 )
 NUM_FEATURES = len(FEATURE_NAMES)
 G0 = 9.8
 """[m/s^2] The reference gravity of the time channel."""
 _LOW_SHARE = 0.1
-LOG_FLOOR = 0.003
-"""The floor of the log-scaled ``shape`` and ``strain`` channels."""
 """Share of the particles whose mean height is the underside (``bottom``)."""
+LOG_FLOOR = 0.003
+"""The floor of the log-scaled ``shape``, ``strain``, ``peak_deform`` and ``speed``
+channels."""
+VISIBLE_RISE = 0.03
+"""``impact_rebound`` counts a fall only over this share of the rest vertical extent
+(``metrics.physical.VISIBLE_RISE``)."""
+WOBBLE_ON = 0.005
+WOBBLE_SWING = 0.008
+"""``wobbles``: reversals counted after D / L first exceeds ``WOBBLE_ON``, each a swing
+over ``WOBBLE_SWING`` (``motion_data.motion_measures``)."""
 
 
 @dataclass(frozen=True)
@@ -183,14 +226,30 @@ def frame_features(x: Tensor, F: Tensor, times: Tensor, scene: MotionScene) -> T
     lowest = torch.cummin(h_c, dim=0).values
     h_rest = float(c0 @ up) - ground
     rebound = (h_c - lowest) / torch.clamp(h_rest - lowest, min=0.05 * L)
+    # the captions' measures over the frames so far (channels 13-18)
+    fit = torch.einsum("tij,pj->tpi", R, a)
+    D = ((d - fit).pow(2).sum(-1) + (1e-9 * L) ** 2).sqrt().mean(1) / L
+    peak_deform = torch.log(LOG_FLOOR + torch.cummax(D, dim=0).values)
+    vertical = torch.log(sig_up / sig_up0)
+    spread = torch.log(r_h / r_h0)
+    step = (x[1:] - x[:-1]).pow(2).sum(-1).add(1e-18).sqrt().mean(1)
+    gap = (tt[1:] - tt[:-1]).clamp_min(1e-9)
+    if step.numel():
+        u = torch.cat([step[:1] / gap[:1], step / gap]) / math.sqrt(G0 * L)
+    else:
+        u = torch.zeros_like(h_c)
+    hr = (rest * up).sum(-1)
+    visible = VISIBLE_RISE * float(
+        torch.quantile(hr.double(), 0.995) - torch.quantile(hr.double(), 0.005)
+    )
     return torch.stack(
         [
             h_c / h_c0,
             h_c / L,
             (low - ground) / L,
             drift,
-            torch.log(sig_up / sig_up0),
-            torch.log(r_h / r_h0),
+            vertical,
+            spread,
             0.5 * torch.log(tr / tr0.clamp_min(1e-12 * L**2)),
             torch.log(LOG_FLOOR + shape),
             torch.log(LOG_FLOOR + strain),
@@ -198,9 +257,71 @@ def frame_features(x: Tensor, F: Tensor, times: Tensor, scene: MotionScene) -> T
             time_ch,
             grav,
             rebound,
+            peak_deform,
+            torch.cummin(vertical, dim=0).values,
+            torch.cummax(spread, dim=0).values,
+            torch.log(LOG_FLOOR + u),
+            impact_rebound(h_c, visible),
+            wobble_count(D).to(dt),
         ],
         dim=-1,
     )
+
+
+def _first_impact(h: list[float], visible: float) -> int:
+    """Frame of the first impact of the heights ``h`` (``metrics.physical.first_impact``)."""
+    peak, depth = [], []
+    top = -math.inf
+    for v in h:
+        top = max(top, v)
+        peak.append(top)
+        depth.append(top - v)
+    need = 0.5 * max(depth)
+    k = max(range(len(h)), key=lambda i: depth[i])
+    for i in range(1, len(h) - 1):
+        if h[i] < h[i - 1] and h[i] <= h[i + 1] and depth[i] >= need and depth[i] > 0:
+            if max(h[i:]) - h[i] >= visible:
+                return i
+    return k
+
+
+def impact_rebound(h: Tensor, visible: float) -> Tensor:
+    """[T] the rebound ratio of ``h[:j + 1]`` for every j (see channel 17): the largest
+    rise after the first impact over the fall before it, 0 where that fall is at most
+    ``visible`` [m]. The impact frame is chosen on the values; the ratio is
+    differentiable in ``h``."""
+    vals = [float(v) for v in h.detach().cpu()]
+    out: list[Tensor] = []
+    for j in range(len(vals)):
+        k = _first_impact(vals[: j + 1], visible)
+        top = h[: k + 1].max()
+        fall = top - h[k]
+        if float(fall.detach()) <= max(visible, 1e-6) or k >= j:
+            out.append(h[j] * 0.0)
+            continue
+        out.append((h[k : j + 1].max() - h[k]) / fall)
+    return torch.stack(out)
+
+
+def wobble_count(D: Tensor) -> Tensor:
+    """[T] reversals so far of the deformation series ``D`` [T] (channel 18)."""
+    vals = [float(v) for v in D.detach().cpu()]
+    counts = [0.0] * len(vals)
+    on = next((i for i, v in enumerate(vals) if v > WOBBLE_ON), None)
+    if on is not None:
+        wob, last, direction = 0, vals[on], 0
+        for i in range(on + 1, len(vals)):
+            val = vals[i]
+            if direction >= 0 and val < last - WOBBLE_SWING:
+                wob += direction > 0
+                direction, last = -1, val
+            elif direction <= 0 and val > last + WOBBLE_SWING:
+                wob += direction < 0
+                direction, last = 1, val
+            elif (direction >= 0 and val > last) or (direction <= 0 and val < last):
+                last = val
+            counts[i] = float(wob)
+    return torch.tensor(counts, dtype=D.dtype, device=D.device)
 
 
 def resample(values: Tensor, times: Tensor, num_frames: int) -> Tensor:

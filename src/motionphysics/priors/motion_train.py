@@ -10,10 +10,11 @@ phrasings per clip, one drawn per step), encoded once as pooled MiniLM vectors.
 Training: x0-prediction MSE on the standardised features (1000-step cosine schedule,
 uniform t), classifier-free-guidance dropout (the caption replaced by ``""`` with
 probability ``cond_dropout``), group-balanced clip order, AdamW with warm-up, an EMA of
-the weights, and a caption-contrast hinge (``contrast``: for clips with a motion group,
-the x0 error under a prompt of the clip's own group must be lower, by a relative
-margin, than under another group's prompt at the same noise and timestep): what
-caption discrimination and the pairwise contrast of the losses use.
+the weights, and a caption contrast (``contrast``: for up to ``contrast_clips`` clips of a
+batch with a motion group, a cross-entropy over the groups whose logits are the negative
+log x0 errors under one training prompt of each group at the same noise and timestep:
+the clip's own group's prompt must denoise it best): what caption discrimination and the
+pairwise contrast of the losses use.
 
 Resumable and deterministic per seed: the checkpoint holds the weights, EMA, optimiser,
 the torch generator that draws every random number of the loop, the data position and
@@ -41,7 +42,13 @@ import torch
 from torch import Tensor
 
 from motionphysics.errors import UserInputError
-from motionphysics.language.captions import GROUPS, TRAIN, caption_clip, group_prompt
+from motionphysics.language.captions import (
+    GROUPS,
+    caption_clip,
+    group_prompt,
+    object_noun,
+    training_phrasings,
+)
 from motionphysics.language.text import sentence_embeddings
 from motionphysics.priors.motion import (
     MotionDenoiser,
@@ -64,7 +71,7 @@ __all__ = [
 
 CAPTIONS_PER_CLIP = 6
 NUM_FRAMES = 16
-FEATURES_VERSION = "2"
+FEATURES_VERSION = "3"
 VIEWS: tuple[tuple[int, int], ...] = ((1, 1), (2, 1), (2, 2), (3, 1), (3, 3))
 """(stride, first frame) of the observed subsequences a clip is seen through: every
 frame; every second frame from frame 1 or 2; every third frame from frame 1 or 3."""
@@ -80,8 +87,14 @@ class MotionTrainOptions:
     ema_decay: float = 0.999
     cond_dropout: float = 0.1
     contrast: float = 0.5
-    """Weight of the caption-contrast hinge (0: plain denoising)."""
-    contrast_margin: float = 0.05
+    """Weight of the caption contrast (0: plain denoising): a cross-entropy over the motion
+    groups whose logits are -log(x0 error) / ``contrast_temperature`` of the clip under one
+    training prompt of every group (same noise and t), so that the clip's own group's
+    prompt denoises it best (what the discrimination measures)."""
+    contrast_temperature: float = 0.05
+    """A 5 % lower x0 error is one unit of logit."""
+    contrast_clips: int = 16
+    """Grouped clips of a batch the contrast is computed on (each costs 8 forwards)."""
     seed: int = 0
     save_every: int = 200
     log_every: int = 100
@@ -200,29 +213,31 @@ def epoch_order(groups: list[str | None], seed: int, epoch: int) -> np.ndarray:
 
 
 class _GroupPrompts:
-    """Pooled MiniLM vectors of ``group_prompt(group, shape, k, held_out=False)`` for every
-    group, shape and training phrasing (the contrast term's prompts)."""
+    """Pooled MiniLM vectors of every group's training phrasings (``training_phrasings``)
+    with every shape's noun, as ``group_prompt`` writes them (the contrast term's prompts)."""
 
     def __init__(self, shapes) -> None:
         self.shapes = sorted(set(shapes))
         texts: list[str] = []
         self.rows: dict[tuple[int, int], list[int]] = {}
         for gi, g in enumerate(GROUPS):
+            phrasings = training_phrasings(g)
             for si, sh in enumerate(self.shapes):
                 self.rows[(gi, si)] = []
-                for k in range(len(TRAIN[g])):
+                for k in range(len(phrasings)):
                     self.rows[(gi, si)].append(len(texts))
-                    texts.append(group_prompt(g, sh, k, held_out=False))
+                    obj = object_noun(sh, k)
+                    texts.append(f"{'an' if obj[0] in 'aeiou' else 'a'} {obj} {phrasings[k]}")
         self.emb = sentence_embeddings(texts)
 
-    def draw(self, group: int, shape: str, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+    def draw_all(self, shape: str, gen: torch.Generator) -> Tensor:
+        """[len(GROUPS), D]: one random training prompt of every group for ``shape``."""
         si = self.shapes.index(shape)
-        other = int(torch.randint(0, len(GROUPS) - 1, (1,), generator=gen))
-        other += other >= group
-        pos, neg = self.rows[(group, si)], self.rows[(other, si)]
-        i = pos[int(torch.randint(0, len(pos), (1,), generator=gen))]
-        j = neg[int(torch.randint(0, len(neg), (1,), generator=gen))]
-        return self.emb[i], self.emb[j]
+        out = []
+        for gi in range(len(GROUPS)):
+            rows = self.rows[(gi, si)]
+            out.append(self.emb[rows[int(torch.randint(0, len(rows), (1,), generator=gen))]])
+        return torch.stack(out)
 
 
 # ---- checkpoint ----------------------------------------------------------------------
@@ -263,6 +278,7 @@ def prior_from_checkpoint(path: str | Path, device: str = "cpu") -> MotionPrior:
         num_frames=ck["config"]["num_frames"],
         device=device,
         meta=ck.get("meta"),
+        feature_names=ck["config"].get("features"),
     )
 
 
@@ -405,16 +421,19 @@ def train(
             total = loss
             hinge = None
             if contrast is not None:
-                rows = [r for r in range(b) if gidx[idx[r]] >= 0]
+                rows = [r for r in range(b) if gidx[idx[r]] >= 0][: o.contrast_clips]
                 if rows:
-                    pairs = [
-                        contrast.draw(gidx[idx[r]], ds["specs"][idx[r]]["shape"], gen) for r in rows
-                    ]
-                    both = torch.stack([p_ for pr in pairs for p_ in pr]).to(device)
-                    sel = torch.tensor(rows).repeat_interleave(2).to(device)
-                    err = ((net(zt[sel], t[sel], both) - z0[sel]) ** 2).mean(dim=(1, 2))
-                    pos, neg = err[0::2], err[1::2]
-                    hinge = torch.relu(pos - neg + o.contrast_margin * pos.detach()).mean()
+                    n_g = len(GROUPS)
+                    prompts = torch.cat(
+                        [contrast.draw_all(ds["specs"][idx[r]]["shape"], gen) for r in rows]
+                    ).to(device)
+                    sel = torch.tensor(rows).repeat_interleave(n_g).to(device)
+                    err = ((net(zt[sel], t[sel], prompts) - z0[sel]) ** 2).mean(dim=(1, 2))
+                    logits = -torch.log(err.reshape(len(rows), n_g) + 1e-8)
+                    target = torch.tensor([gidx[idx[r]] for r in rows], device=device)
+                    hinge = torch.nn.functional.cross_entropy(
+                        logits / o.contrast_temperature, target
+                    )
                     total = loss + o.contrast * hinge
             opt.zero_grad(set_to_none=True)
             total.backward()
@@ -437,7 +456,7 @@ def train(
                     "epoch": state["epoch"],
                 }
                 if run_hinge:
-                    rec["contrast_hinge"] = float(np.mean(run_hinge[-o.log_every :]))
+                    rec["contrast"] = float(np.mean(run_hinge[-o.log_every :]))
                 state["log"].append(rec)
                 log(json.dumps(rec))
             if state["step"] % o.save_every == 0:
@@ -491,7 +510,10 @@ def discrimination(
                 for k in range(prompts_per_group)
             ]
             cache[shape] = sentence_embeddings(prompts)[:, None]
-        z0 = normalise(torch.from_numpy(ds["features"][i, view]), prior.mean, prior.std)
+        f = torch.from_numpy(ds["features"][i, view])
+        if f.shape[-1] != len(prior.feature_names):
+            f = f[:, [FEATURE_NAMES.index(n) for n in prior.feature_names]]
+        z0 = normalise(f, prior.mean, prior.std)
         z0 = z0[None, :, :, None, None].to(prior.device)
         noise = torch.randn((len(ts), *z0.shape[1:]), generator=g).to(prior.device)
         losses = prior.denoising_loss(z0, cache[shape].to(prior.device), ts.to(prior.device), noise)
