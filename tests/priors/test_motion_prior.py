@@ -18,6 +18,7 @@ from motionphysics.priors import PRIORS
 from motionphysics.priors.base import SceneContext
 from motionphysics.priors.motion import MotionDenoiser, MotionPrior, net_config
 from motionphysics.priors.motion_features import NUM_FEATURES
+from motionphysics.priors.motion_text import MotionText
 from motionphysics.priors.motion_train import (
     MotionTrainOptions,
     discrimination,
@@ -35,7 +36,12 @@ def _prior(seed: int = 0) -> MotionPrior:
     net = MotionDenoiser(**net_config("test"))
     for p in net.out.parameters():  # a non-zero output, so the guided difference is not 0
         torch.nn.init.normal_(p, std=0.3)
-    return MotionPrior(net, mean=torch.zeros(NUM_FEATURES), std=torch.ones(NUM_FEATURES))
+    return MotionPrior(
+        net,
+        mean=torch.zeros(NUM_FEATURES),
+        std=torch.ones(NUM_FEATURES),
+        text=MotionText.default().config(),
+    )
 
 
 def _scene_and_prediction(rng_seed: int = 0):
@@ -172,9 +178,13 @@ def test_prior_cli_trains_and_exports(data, tmp_path, capsys):
 
     ck = tmp_path / "c.pt"
     assert main(["--quiet", "prior", "train", str(data), "--out", str(ck), "--steps", "2",
-                 "--batch", "4", "--threads", "1"]) == 0  # fmt: skip
+                 "--batch", "4", "--threads", "1", "--sentence-dropout", "0.25"]) == 0  # fmt: skip
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["step"] == 2
+    saved = torch.load(ck, weights_only=True)
+    assert saved["meta"]["options"]["sentence_dropout"] == 0.25
+    # the checkpoint reads prompts the way it was trained: its anchors travel with it
+    assert saved["config"]["text"] == MotionText.default().config()
     dst = tmp_path / "w.pt"
     assert main(["prior", "export", str(ck), str(dst)]) == 0
     w = torch.load(dst, weights_only=True)

@@ -113,6 +113,7 @@ def _train(args) -> int:
         size="cuda" if args.device == "cuda" else "cpu",
         threads=args.threads,
         contrast=args.contrast,
+        sentence_dropout=args.sentence_dropout,
     )
 
     def log(text: str) -> None:
@@ -219,6 +220,15 @@ def register(subparsers) -> None:
         help="weight of the caption contrast (a cross-entropy over the motion groups: the "
         "clip's own group's prompt must denoise it best, at the same noise); 0 = plain "
         "denoising",
+    )
+    t.add_argument(
+        "--sentence-dropout",
+        type=float,
+        default=0.5,
+        metavar="P",
+        help="probability that a caption's sentence vector is replaced by the empty "
+        "prompt's while its motion reading is kept (the reading alone must carry the "
+        "motion, as it must for words the prior never saw); 0 = never",
     )
     t.set_defaults(func=_train)
 

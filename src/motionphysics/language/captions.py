@@ -32,6 +32,7 @@ __all__ = [
     "TRAIN",
     "OPPOSITE",
     "PARAPHRASES",
+    "prompt_clauses",
     "caption_clip",
     "contrast_prompt",
     "firmness",
@@ -554,6 +555,19 @@ def _split(prompt: str) -> tuple[str, str]:
     return "the object", ""
 
 
+def prompt_clauses(prompt: str, *, whole_if_no_verb: bool = False) -> list[str]:
+    """The clauses of the prompt's predicate (what it says the thing does: the words from
+    its first verb on), split at commas, "and", "then", "but", "while". No clauses when no
+    verb is found, unless ``whole_if_no_verb`` (then the whole prompt's)."""
+    import re
+
+    _, pred = _split(prompt)
+    if not pred and whole_if_no_verb:
+        pred = prompt.strip().rstrip(".!")
+    split = r",|;|\band\b|\bthen\b|\bbut\b|\bwhile\b"
+    return [c.strip() for c in re.split(split, pred) if c.strip()]
+
+
 def prompt_motion_group(prompt: str, exclude: Collection[str] = ()) -> tuple[str | None, float]:
     """The motion group whose phrasings (training, held-out and :data:`READING_EXTRA`) a
     clause of the prompt's predicate (what it says the thing does; clauses split at commas,
@@ -577,13 +591,7 @@ def prompt_motion_reading(
     clause)``. ``held_out_anchors=False`` compares with the training phrasings only (what
     the kb's motion reading uses, so held-out phrasings stay unseen by everything that
     reads a prompt); ``whole_if_no_verb`` reads the whole prompt when no verb splits it."""
-    import re
-
-    _, pred = _split(prompt)
-    if not pred and whole_if_no_verb:
-        pred = prompt.strip().rstrip(".!")
-    split = r",|;|\band\b|\bthen\b|\bbut\b|\bwhile\b"
-    clauses = [c.strip() for c in re.split(split, pred) if c.strip()]
+    clauses = prompt_clauses(prompt, whole_if_no_verb=whole_if_no_verb)
     if not clauses:
         return None, 0.0, ""
     table = {

@@ -35,6 +35,7 @@ import torch
 from torch import Tensor, nn
 
 from motionphysics.errors import UserInputError
+from motionphysics.language.captions import GROUPS
 from motionphysics.language.text import TEXT_DIM, sentence_embeddings
 from motionphysics.priors.base import TextEmbeddings, VideoPrior
 from motionphysics.priors.motion_features import (
@@ -43,6 +44,7 @@ from motionphysics.priors.motion_features import (
     MotionScene,
     clip_features,
 )
+from motionphysics.priors.motion_text import MotionText
 from motionphysics.runtime import single_thread
 
 __all__ = [
@@ -84,7 +86,7 @@ def _timestep_embedding(t: Tensor, dim: int) -> Tensor:
 def net_config(size: str = "cpu") -> dict[str, Any]:
     """Network sizes: ``cpu`` (~0.35M parameters: trains in minutes on 2 cores), ``cuda``
     (~6M), ``test`` (tiny)."""
-    base = {"features": NUM_FEATURES, "frames": 16, "text_dim": TEXT_DIM}
+    base = {"features": NUM_FEATURES, "frames": 16, "text_dim": TEXT_DIM, "reading": len(GROUPS)}
     if size == "test":
         return {**base, "width": 16, "layers": 1, "heads": 2}
     if size == "cuda":
@@ -93,7 +95,10 @@ def net_config(size: str = "cpu") -> dict[str, Any]:
 
 
 class MotionDenoiser(nn.Module):
-    """x0 prediction: ``z_t [B, F, C]``, ``t [B]``, pooled text ``[B, D]`` -> ``[B, F, C]``."""
+    """x0 prediction: ``z_t [B, F, C]``, ``t [B]``, text ``[B, D (+ R)]`` -> ``[B, F, C]``.
+
+    The text is the pooled sentence vector, followed, when ``reading`` > 0, by the
+    ``reading``-dimensional motion reading of :mod:`.motion_text` (a token of its own)."""
 
     def __init__(
         self,
@@ -103,13 +108,19 @@ class MotionDenoiser(nn.Module):
         layers: int = 4,
         heads: int = 4,
         text_dim: int = TEXT_DIM,
+        reading: int = 0,
     ):
         super().__init__()
         self.width = width
+        self.text_dim = text_dim
+        self.reading = reading
         self.inp = nn.Linear(features, width)
         self.pos = nn.Parameter(torch.randn(1, frames, width) * 0.02)
         self.t_mlp = nn.Sequential(nn.Linear(width, width), nn.SiLU(), nn.Linear(width, width))
         self.txt = nn.Sequential(nn.Linear(text_dim, width), nn.SiLU(), nn.Linear(width, width))
+        if reading:
+            # the motion reading (motion_text.MotionText): its own token
+            self.read = nn.Sequential(nn.Linear(reading, width), nn.SiLU(), nn.Linear(width, width))
         layer = nn.TransformerEncoderLayer(
             width,
             heads,
@@ -126,10 +137,12 @@ class MotionDenoiser(nn.Module):
     def forward(self, z: Tensor, t: Tensor, text: Tensor) -> Tensor:
         f = z.shape[1]
         t_tok = self.t_mlp(_timestep_embedding(t, self.width))
-        x_tok = self.txt(text)
-        tokens = torch.cat([t_tok[:, None], x_tok[:, None], self.inp(z) + self.pos[:, :f]], 1)
+        cond = [t_tok[:, None], self.txt(text[:, : self.text_dim])[:, None]]
+        if self.reading:
+            cond.append(self.read(text[:, self.text_dim :])[:, None])
+        tokens = torch.cat([*cond, self.inp(z) + self.pos[:, :f]], 1)
         h = self.encoder(tokens)
-        return self.out(self.norm(h[:, 2:]))
+        return self.out(self.norm(h[:, len(cond) :]))
 
 
 def _load_checkpoint(path: str | Path | None) -> dict[str, Any]:
@@ -202,7 +215,18 @@ class MotionPrior(VideoPrior):
         device: str = "cpu",
         meta: dict[str, Any] | None = None,
         feature_names: tuple[str, ...] | list[str] | None = None,
+        text: dict[str, Any] | None = None,
     ):
+        reading = int(getattr(net, "reading", 0))
+        if reading and text is None:
+            raise UserInputError(
+                "prior motion: the weights read a motion reading of the prompt but the "
+                "checkpoint holds no anchors (config.text); retrain them with "
+                "`motionphysics prior train`"
+            )
+        self.text_reader = MotionText.from_config(text) if reading else None
+        """How the prompt is read (:mod:`.motion_text`); None: the sentence vector only
+        (weights trained before the motion reading)."""
         names = tuple(feature_names) if feature_names is not None else None
         if names is None:
             names = FEATURE_NAMES[: int(torch.as_tensor(mean).shape[0])]
@@ -257,11 +281,19 @@ class MotionPrior(VideoPrior):
             device=device,
             meta=ck.get("meta"),
             feature_names=cfg.get("features"),
+            text=cfg.get("text"),
         )
 
     # ---- text ------------------------------------------------------------------------
+    def embed_texts(self, texts: list[str]) -> Tensor:
+        """``[N, 1, D]`` text conditions of ``texts`` as this prior's network reads them
+        (the sentence vector, and the motion reading when the weights have one)."""
+        if self.text_reader is None:
+            return sentence_embeddings(list(texts))[:, None]
+        return self.text_reader.encode(list(texts))[:, None]
+
     def encode_text(self, prompt: str, negative_prompt: str = "") -> TextEmbeddings:
-        emb = sentence_embeddings([prompt, negative_prompt]).to(self.device)[:, None]
+        emb = self.embed_texts([prompt, negative_prompt]).to(self.device)
         return TextEmbeddings(
             cond=emb[:1], uncond=emb[1:], prompt=prompt, negative_prompt=negative_prompt
         )

@@ -49,7 +49,7 @@ from motionphysics.language.captions import (
     object_noun,
     training_phrasings,
 )
-from motionphysics.language.text import sentence_embeddings
+from motionphysics.language.text import TEXT_DIM, sentence_embeddings
 from motionphysics.priors.motion import (
     MotionDenoiser,
     MotionPrior,
@@ -58,6 +58,7 @@ from motionphysics.priors.motion import (
     normalise,
 )
 from motionphysics.priors.motion_features import FEATURE_NAMES, MotionScene, clip_features
+from motionphysics.priors.motion_text import MotionText
 
 __all__ = [
     "VIEWS",
@@ -95,6 +96,10 @@ class MotionTrainOptions:
     """A 5 % lower x0 error is one unit of logit."""
     contrast_clips: int = 16
     """Grouped clips of a batch the contrast is computed on (each costs 8 forwards)."""
+    sentence_dropout: float = 0.5
+    """Probability that a caption's sentence vector is replaced by the unconditional one
+    while its motion reading is kept (:mod:`.motion_text`), so that the reading alone
+    carries the motion: what a phrasing the network has not seen relies on."""
     seed: int = 0
     save_every: int = 200
     log_every: int = 100
@@ -216,7 +221,7 @@ class _GroupPrompts:
     """Pooled MiniLM vectors of every group's training phrasings (``training_phrasings``)
     with every shape's noun, as ``group_prompt`` writes them (the contrast term's prompts)."""
 
-    def __init__(self, shapes) -> None:
+    def __init__(self, shapes, reader: MotionText) -> None:
         self.shapes = sorted(set(shapes))
         texts: list[str] = []
         self.rows: dict[tuple[int, int], list[int]] = {}
@@ -228,7 +233,7 @@ class _GroupPrompts:
                     self.rows[(gi, si)].append(len(texts))
                     obj = object_noun(sh, k)
                     texts.append(f"{'an' if obj[0] in 'aeiou' else 'a'} {obj} {phrasings[k]}")
-        self.emb = sentence_embeddings(texts)
+        self.emb = reader.encode(texts, leave_out=True)
 
     def draw_all(self, shape: str, gen: torch.Generator) -> Tensor:
         """[len(GROUPS), D]: one random training prompt of every group for ``shape``."""
@@ -279,6 +284,7 @@ def prior_from_checkpoint(path: str | Path, device: str = "cpu") -> MotionPrior:
         device=device,
         meta=ck.get("meta"),
         feature_names=ck["config"].get("features"),
+        text=ck["config"].get("text"),
     )
 
 
@@ -317,9 +323,17 @@ def train(
     flat = torch.from_numpy(feats.reshape(-1, C)).double()
     mean, std = flat.mean(0).float(), flat.std(0).clamp_min(1e-3).float()
     z_all = normalise(torch.from_numpy(feats), mean, std)  # [N, V, T, C]
-    text_emb = torch.from_numpy(ds["text_emb"])
-    uncond = sentence_embeddings([""])[0]
-    cfg = {"net": net_config(o.size), "num_frames": int(T), "features": list(FEATURE_NAMES)}
+    reader = MotionText.default()
+    text_emb = torch.cat(
+        [torch.from_numpy(ds["text_emb"]), reader.readings(ds["texts"], leave_out=True)], 1
+    )
+    uncond = reader.encode([""])[0]
+    cfg = {
+        "net": net_config(o.size),
+        "num_frames": int(T),
+        "features": list(FEATURE_NAMES),
+        "text": reader.config(),
+    }
     if cfg["net"]["frames"] != T or cfg["net"]["features"] != C:
         raise UserInputError(
             f"{data}: clips of {T} frames x {C} features; the network expects "
@@ -350,7 +364,7 @@ def train(
         raise UserInputError(f"{out}: exists; pass --resume to continue it or another --out")
     ac = cosine_alphas_cumprod().to(device)
     n_params = sum(p.numel() for p in net.parameters())
-    contrast = _GroupPrompts([s["shape"] for s in ds["specs"]]) if o.contrast > 0 else None
+    contrast = _GroupPrompts([s["shape"] for s in ds["specs"]], reader) if o.contrast > 0 else None
     gidx = [GROUPS.index(g) if g is not None else -1 for g in ds["groups"]]
     order = epoch_order(ds["groups"], o.seed, state["epoch"])
 
@@ -410,6 +424,11 @@ def train(
             txt = text_emb[torch.from_numpy(ds["caption_idx"][idx, pick])]
             drop = torch.rand(b, generator=gen) < o.cond_dropout
             txt = torch.where(drop[:, None], uncond[None], txt)
+            if o.sentence_dropout > 0:
+                plain = torch.rand(b, generator=gen) < o.sentence_dropout
+                txt[:, :TEXT_DIM] = torch.where(
+                    plain[:, None], uncond[None, :TEXT_DIM], txt[:, :TEXT_DIM]
+                )
             t = torch.randint(0, 1000, (b,), generator=gen)
             noise = torch.randn(z0.shape, generator=gen)
             z0, txt, t, noise = z0.to(device), txt.to(device), t.to(device), noise.to(device)
@@ -509,7 +528,7 @@ def discrimination(
                 for gn in GROUPS
                 for k in range(prompts_per_group)
             ]
-            cache[shape] = sentence_embeddings(prompts)[:, None]
+            cache[shape] = prior.embed_texts(prompts)
         f = torch.from_numpy(ds["features"][i, view])
         if f.shape[-1] != len(prior.feature_names):
             f = f[:, [FEATURE_NAMES.index(n) for n in prior.feature_names]]
