@@ -178,11 +178,13 @@ def test_prior_cli_trains_and_exports(data, tmp_path, capsys):
 
     ck = tmp_path / "c.pt"
     assert main(["--quiet", "prior", "train", str(data), "--out", str(ck), "--steps", "2",
-                 "--batch", "4", "--threads", "1", "--sentence-dropout", "0.25"]) == 0  # fmt: skip
+                 "--batch", "4", "--threads", "1", "--sentence-dropout", "0.25",
+                 "--subject-swap", "0.5"]) == 0  # fmt: skip
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["step"] == 2
     saved = torch.load(ck, weights_only=True)
     assert saved["meta"]["options"]["sentence_dropout"] == 0.25
+    assert saved["meta"]["options"]["subject_swap"] == 0.5
     # the checkpoint reads prompts the way it was trained: its anchors travel with it
     assert saved["config"]["text"] == MotionText.default().config()
     dst = tmp_path / "w.pt"

@@ -62,11 +62,11 @@ def test_leave_out_is_the_reading_without_the_contained_anchors():
     assert float(full.readings(text)[0, GROUPS.index("bounces_high")]) > 0.99
 
 
-def test_encode_is_sentence_vector_then_reading(reader):
+def test_encode_is_subject_vector_then_reading(reader):
     texts = ["A honey drop oozes slowly.", ""]
     e = reader.encode(texts)
     assert e.shape == (2, reader.dim) and reader.dim == TEXT_DIM + len(GROUPS)
-    assert torch.allclose(e[:, :TEXT_DIM], sentence_embeddings(texts), atol=0)
+    assert torch.allclose(e[:, :TEXT_DIM], sentence_embeddings(["A honey drop", ""]), atol=1e-6)
     assert torch.equal(e[:, TEXT_DIM:], reader.readings(texts))
     assert int(e[0, TEXT_DIM:].argmax()) == GROUPS.index("oozes")
     assert reader.encode([]).shape == (0, reader.dim)
@@ -86,3 +86,24 @@ def test_bad_anchors_are_refused():
         MotionText(["bounces"], [])
     with pytest.raises(ValueError, match="unknown groups"):
         MotionText(["bounces"], ["hops"])
+
+
+def test_the_predicate_reaches_the_network_only_through_the_reading(reader):
+    """Subject vectors: two phrasings of one motion for one object differ only in their
+    reading; firmness words before the verb stay in the vector; a prompt without a verb is
+    pooled whole. ``sentence="whole"`` (a checkpoint without the key) pools every word."""
+    a, b = "A stiff rubber duck jumps right back up.", "A stiff rubber duck bounces up high."
+    e = reader.encode([a, b, "A soft rubber duck bounces up high.", "a bouncy ball"])
+    assert torch.equal(e[0, :TEXT_DIM], e[1, :TEXT_DIM])
+    assert not torch.equal(e[1, :TEXT_DIM], e[2, :TEXT_DIM])
+    # (allclose: the pooled sum's rounding depends on the batch's padding)
+    assert torch.allclose(e[3, :TEXT_DIM], sentence_embeddings(["a bouncy ball"])[0], atol=1e-6)
+    cfg = reader.config()
+    del cfg["sentence"]
+    whole = MotionText.from_config(cfg)
+    assert whole.sentence == "whole"
+    w = whole.encode([a, b])
+    assert torch.allclose(w[:, :TEXT_DIM], sentence_embeddings([a, b]), atol=1e-6)
+    assert torch.equal(w[:, TEXT_DIM:], e[:2, TEXT_DIM:])
+    with pytest.raises(ValueError, match="sentence must be one of"):
+        MotionText(["bounces"], ["bounces_high"], sentence="predicate")

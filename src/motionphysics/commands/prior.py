@@ -114,6 +114,7 @@ def _train(args) -> int:
         threads=args.threads,
         contrast=args.contrast,
         sentence_dropout=args.sentence_dropout,
+        subject_swap=args.subject_swap,
     )
 
     def log(text: str) -> None:
@@ -229,6 +230,14 @@ def register(subparsers) -> None:
         help="probability that a caption's sentence vector is replaced by the empty "
         "prompt's while its motion reading is kept (the reading alone must carry the "
         "motion, as it must for words the prior never saw); 0 = never",
+    )
+    t.add_argument(
+        "--subject-swap",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="probability that a caption's sentence vector is another caption's while its "
+        "motion reading is kept (the material words cannot decide the motion); 0 = never",
     )
     t.set_defaults(func=_train)
 

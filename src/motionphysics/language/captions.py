@@ -33,6 +33,7 @@ __all__ = [
     "OPPOSITE",
     "PARAPHRASES",
     "prompt_clauses",
+    "prompt_subject",
     "caption_clip",
     "contrast_prompt",
     "firmness",
@@ -566,6 +567,16 @@ def prompt_clauses(prompt: str, *, whole_if_no_verb: bool = False) -> list[str]:
         pred = prompt.strip().rstrip(".!")
     split = r",|;|\band\b|\bthen\b|\bbut\b|\bwhile\b"
     return [c.strip() for c in re.split(split, pred) if c.strip()]
+
+
+def prompt_subject(prompt: str) -> str:
+    """What the prompt is about: its words before the first verb ("A soft, wobbly rubber
+    capsule" of "A soft, wobbly rubber capsule is dropped and squashes"), the whole prompt
+    when no verb is found ("a bouncy ball"), ``""`` for ``""``."""
+    if not prompt.strip():
+        return ""
+    subject, pred = _split(prompt)
+    return subject if pred else prompt.strip().rstrip(".!")
 
 
 def prompt_motion_group(prompt: str, exclude: Collection[str] = ()) -> tuple[str | None, float]:

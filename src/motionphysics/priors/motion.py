@@ -316,7 +316,9 @@ class MotionPrior(VideoPrior):
         sc = self.scene
         rest = sc.rest.to(xs) if offset is None else sc.rest.to(xs) + offset.to(xs)
         times = torch.as_tensor(frame_indices, dtype=torch.float64) * float(sc.frame_dt)
-        scene = MotionScene(rest=rest, ground=sc.ground, gravity=tuple(sc.gravity))
+        scene = MotionScene(
+            rest=rest, ground=sc.ground, gravity=tuple(sc.gravity), granular=sc.granular
+        )
         f = clip_features(xs, Fs, times, scene, self.num_frames)
         if len(self._channels) == f.shape[1]:
             return f

@@ -72,7 +72,7 @@ __all__ = [
 
 CAPTIONS_PER_CLIP = 6
 NUM_FRAMES = 16
-FEATURES_VERSION = "3"
+FEATURES_VERSION = "4"
 VIEWS: tuple[tuple[int, int], ...] = ((1, 1), (2, 1), (2, 2), (3, 1), (3, 3))
 """(stride, first frame) of the observed subsequences a clip is seen through: every
 frame; every second frame from frame 1 or 2; every third frame from frame 1 or 3."""
@@ -100,6 +100,11 @@ class MotionTrainOptions:
     """Probability that a caption's sentence vector is replaced by the unconditional one
     while its motion reading is kept (:mod:`.motion_text`), so that the reading alone
     carries the motion: what a phrasing the network has not seen relies on."""
+    subject_swap: float = 0.0
+    """Probability that a caption's sentence vector is replaced by that of another caption
+    (any clip's, drawn uniformly) while its motion reading is kept: the words that name
+    the thing ("thick honey") then cannot decide the motion, the reading must, as it must
+    when a prompt contrasts two motions of one subject (``negative_prompt: auto``)."""
     seed: int = 0
     save_every: int = 200
     log_every: int = 100
@@ -111,12 +116,18 @@ class MotionTrainOptions:
 # ---- data ----------------------------------------------------------------------------
 
 
-def clip_views(x, F, t, ground, gravity) -> np.ndarray:
-    """[len(VIEWS), NUM_FRAMES, C] float32 features of one clip's stored states."""
+def clip_views(x, F, t, ground, gravity, granular: float = 0.0) -> np.ndarray:
+    """[len(VIEWS), NUM_FRAMES, C] float32 features of one clip's stored states
+    (``granular``: its share of sand particles)."""
     x = torch.as_tensor(np.asarray(x), dtype=torch.float32)
     F = torch.as_tensor(np.asarray(F), dtype=torch.float32)
     t = torch.as_tensor(np.asarray(t), dtype=torch.float64)
-    scene = MotionScene(rest=x[0], ground=float(ground), gravity=tuple(float(v) for v in gravity))
+    scene = MotionScene(
+        rest=x[0],
+        ground=float(ground),
+        gravity=tuple(float(v) for v in gravity),
+        granular=float(granular),
+    )
     out = []
     with torch.no_grad():
         for stride, first in VIEWS:
@@ -139,9 +150,15 @@ def _features(root: Path, data: dict[str, Any]) -> np.ndarray:
     k0 = 0 if done is None else min(done.shape[0], n)
     rows = [done[:k0]] if k0 else []
     for i in range(k0, n):
+        granular = 1.0 if data["specs"][i]["cls"] == "sand" else 0.0
         rows.append(
             clip_views(
-                data["x"][i], data["F"][i], data["t"][i], data["ground"][i], data["gravity"][i]
+                data["x"][i],
+                data["F"][i],
+                data["t"][i],
+                data["ground"][i],
+                data["gravity"][i],
+                granular,
             )[None]
         )
     feats = (
@@ -324,9 +341,7 @@ def train(
     mean, std = flat.mean(0).float(), flat.std(0).clamp_min(1e-3).float()
     z_all = normalise(torch.from_numpy(feats), mean, std)  # [N, V, T, C]
     reader = MotionText.default()
-    text_emb = torch.cat(
-        [torch.from_numpy(ds["text_emb"]), reader.readings(ds["texts"], leave_out=True)], 1
-    )
+    text_emb = reader.encode(ds["texts"], leave_out=True)
     uncond = reader.encode([""])[0]
     cfg = {
         "net": net_config(o.size),
@@ -424,6 +439,12 @@ def train(
             txt = text_emb[torch.from_numpy(ds["caption_idx"][idx, pick])]
             drop = torch.rand(b, generator=gen) < o.cond_dropout
             txt = torch.where(drop[:, None], uncond[None], txt)
+            if o.subject_swap > 0:
+                swap = (torch.rand(b, generator=gen) < o.subject_swap) & ~drop
+                other = text_emb[torch.randint(0, len(text_emb), (b,), generator=gen)]
+                txt[:, :TEXT_DIM] = torch.where(
+                    swap[:, None], other[:, :TEXT_DIM], txt[:, :TEXT_DIM]
+                )
             if o.sentence_dropout > 0:
                 plain = torch.rand(b, generator=gen) < o.sentence_dropout
                 txt[:, :TEXT_DIM] = torch.where(
