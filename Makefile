@@ -61,8 +61,10 @@ prior: $(BIN)/motionphysics
 	$(BIN)/motionphysics prior train $(PRIOR_DATA)/train --out $(PRIOR_DATA)/motion_prior.pt \
 		--budget-min $(PRIOR_MIN) --threads 1 --resume
 	$(BIN)/motionphysics prior eval $(PRIOR_DATA)/motion_prior.pt $(PRIOR_DATA)/held-out \
-		--train-data $(PRIOR_DATA)/train > $(PRIOR_DATA)/eval.json
-	$(BIN)/motionphysics prior export $(PRIOR_DATA)/motion_prior.pt src/motionphysics/priors/motion_prior.pt
+		--train-data $(PRIOR_DATA)/train \
+		--snapshot tests/priors/data/motion_heldout_snapshot.npz > $(PRIOR_DATA)/eval.json
+	$(BIN)/motionphysics prior export $(PRIOR_DATA)/motion_prior.pt \
+		src/motionphysics/priors/motion_prior.pt --eval $(PRIOR_DATA)/eval.json
 
 clean:
 	rm -rf $(VENV) .cache runs

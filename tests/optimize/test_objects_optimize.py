@@ -433,19 +433,3 @@ def test_each_objects_motion_features_have_the_gradient_of_central_differences(t
         got = float(theta[name].grad)
         assert abs(fd) > 1e-6
         assert got == pytest.approx(fd, rel=0.05, abs=1e-3 * abs(fd)), (name, got, fd)
-
-
-def test_the_motion_prior_is_told_which_particles_are_grains():
-    """scene_context's granular share (the motion prior's ``granular`` channel): per
-    object 1 for sand and 0 for rubber, the particle-weighted share for the whole."""
-    from motionphysics.optimize.refine import scene_context
-
-    data = _data()
-    data["objects"][1]["material"] = {"class": "sand", "density": 1600.0, "theta_fric": 35.0}
-    parts = assemble(config_from_dict(data), needs_grad=False, estimate=False,
-                     reference_image=False)  # fmt: skip
-    idx = object_indices(parts)
-    shares = [scene_context(parts, i).granular for i in idx]
-    assert shares == [0.0, 1.0]
-    n = [len(i) for i in idx]
-    assert scene_context(parts).granular == pytest.approx(n[1] / sum(n), abs=1e-12)

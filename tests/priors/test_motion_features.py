@@ -268,19 +268,3 @@ def test_the_last_frame_reads_the_measures_the_captions_are_written_from():
     assert float(f[4, IDX["speed"]]) == pytest.approx(
         math.log(LOG_FLOOR + step / math.sqrt(G0 * L)), rel=1e-9
     )
-
-
-def test_granular_channel_is_the_scenes_sand_share():
-    """Channel ``granular`` is scene context: the share of sand particles, constant over
-    the frames, 0 by default; no other channel depends on it."""
-    rest = _cloud()
-    x = torch.stack([rest, rest + torch.tensor([0.0, 0.0, -0.02], dtype=torch.float64)])
-    F = torch.eye(3, dtype=torch.float64).expand(2, rest.shape[0], 3, 3)
-    t = torch.tensor([0.05, 0.1], dtype=torch.float64)
-    plain = frame_features(x, F, t, MotionScene(rest=rest, ground=0.0))
-    sand = frame_features(x, F, t, MotionScene(rest=rest, ground=0.0, granular=0.25))
-    g = IDX["granular"]
-    assert torch.equal(plain[:, g], torch.zeros(2, dtype=torch.float64))
-    assert torch.equal(sand[:, g], torch.full((2,), 0.25, dtype=torch.float64))
-    others = [i for i in range(plain.shape[1]) if i != g]
-    assert torch.equal(plain[:, others], sand[:, others])

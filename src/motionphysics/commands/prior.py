@@ -234,7 +234,7 @@ def register(subparsers) -> None:
     t.add_argument(
         "--subject-swap",
         type=float,
-        default=0.0,
+        default=0.5,
         metavar="P",
         help="probability that a caption's sentence vector is another caption's while its "
         "motion reading is kept (the material words cannot decide the motion); 0 = never",

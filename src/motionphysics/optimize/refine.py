@@ -346,23 +346,7 @@ def scene_context(parts, index=None):
         ground=None if ground is None else float(ground),
         gravity=tuple(float(v) for v in cfg.sim.gravity),
         frame_dt=float(cfg.sim.frame_dt),
-        granular=granular_share(parts.material, index),
     )
-
-
-def granular_share(material, index=None) -> float:
-    """Share of the particles (of ``index`` [P_k], or all) whose material is granular
-    (sand): one material, or several objects' (``SceneMaterial``)."""
-    import numpy as np
-
-    objects = getattr(material, "objects", None)
-    if objects is None:
-        return 1.0 if material.cls == "sand" else 0.0
-    flags = np.array([o.material.cls == "sand" for o in objects], dtype=np.float64)
-    per = flags[np.asarray(material.object_id)]
-    if index is not None:
-        per = per[np.asarray(index.cpu())]
-    return float(per.mean()) if per.size else 0.0
 
 
 def _states_perturbation(loss, prior) -> dict[str, Any] | None:

@@ -68,8 +68,6 @@ class SceneContext:
     """[m/s^2]."""
     frame_dt: float
     """Seconds between output frames (frame k is at time k * frame_dt)."""
-    granular: float = 0.0
-    """Share of the particles of a granular material (sand), 0-1."""
 
 
 def resample_frames(frames: Tensor, num_frames: int, height: int, width: int) -> Tensor:

@@ -316,9 +316,7 @@ class MotionPrior(VideoPrior):
         sc = self.scene
         rest = sc.rest.to(xs) if offset is None else sc.rest.to(xs) + offset.to(xs)
         times = torch.as_tensor(frame_indices, dtype=torch.float64) * float(sc.frame_dt)
-        scene = MotionScene(
-            rest=rest, ground=sc.ground, gravity=tuple(sc.gravity), granular=sc.granular
-        )
+        scene = MotionScene(rest=rest, ground=sc.ground, gravity=tuple(sc.gravity))
         f = clip_features(xs, Fs, times, scene, self.num_frames)
         if len(self._channels) == f.shape[1]:
             return f

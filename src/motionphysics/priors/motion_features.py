@@ -65,11 +65,6 @@ index  name             meaning
 18     wobbles          how many times the deformation D / L has reversed by more than
                         0.008 since it first exceeded 0.005 (the captions' ``wobble``
                         count; a step function: no gradient)
-19     granular         the share of the particles of a granular material (sand), 0-1
-                        (scene context, constant over a clip, as ``gravity``: a settled
-                        splash and a collapsed heap of grains can look alike, and
-                        "crumbles" is the word for the grains; the class is known in
-                        every run)
 =====  ===============  =============================================================
 
 Channels 13-18 (``FEATURES_VERSION`` 3) carry each measure the captions are written from
@@ -77,8 +72,7 @@ Channels 13-18 (``FEATURES_VERSION`` 3) carry each measure the captions are writ
 frame reads the measure itself: a classifier of the motion group needs no more than
 the features (channels 0-12 alone held the running value, not the peaks the caption
 rules threshold). A prior keeps the channels it was trained on (its checkpoint names
-them): a 13-channel prior reads channels 0-12. Channel 19 (``FEATURES_VERSION`` 4) is
-the granular share of the scene.
+them): a 13-channel prior reads channels 0-12.
 
 :func:`clip_features` turns the observed frames at arbitrary times (the supervised
 frames of a run, or a training clip's frames) into the prior's fixed grid: the rest
@@ -127,7 +121,6 @@ FEATURE_NAMES = (
     "speed",
     "impact_rebound",
     "wobbles",
-    "granular",
 )
 NUM_FEATURES = len(FEATURE_NAMES)
 G0 = 9.8
@@ -157,8 +150,6 @@ class MotionScene:
     point is used as the reference height)."""
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.8)
     """[m/s^2]."""
-    granular: float = 0.0
-    """Share of the particles of a granular material (sand), 0-1."""
 
     @property
     def up(self) -> Tensor:
@@ -272,7 +263,6 @@ def frame_features(x: Tensor, F: Tensor, times: Tensor, scene: MotionScene) -> T
             torch.log(LOG_FLOOR + u),
             impact_rebound(h_c, visible),
             wobble_count(D).to(dt),
-            torch.full_like(h_c, float(scene.granular)),
         ],
         dim=-1,
     )

@@ -72,7 +72,7 @@ __all__ = [
 
 CAPTIONS_PER_CLIP = 6
 NUM_FRAMES = 16
-FEATURES_VERSION = "4"
+FEATURES_VERSION = "3"
 VIEWS: tuple[tuple[int, int], ...] = ((1, 1), (2, 1), (2, 2), (3, 1), (3, 3))
 """(stride, first frame) of the observed subsequences a clip is seen through: every
 frame; every second frame from frame 1 or 2; every third frame from frame 1 or 3."""
@@ -100,7 +100,7 @@ class MotionTrainOptions:
     """Probability that a caption's sentence vector is replaced by the unconditional one
     while its motion reading is kept (:mod:`.motion_text`), so that the reading alone
     carries the motion: what a phrasing the network has not seen relies on."""
-    subject_swap: float = 0.0
+    subject_swap: float = 0.5
     """Probability that a caption's sentence vector is replaced by that of another caption
     (any clip's, drawn uniformly) while its motion reading is kept: the words that name
     the thing ("thick honey") then cannot decide the motion, the reading must, as it must
@@ -116,18 +116,12 @@ class MotionTrainOptions:
 # ---- data ----------------------------------------------------------------------------
 
 
-def clip_views(x, F, t, ground, gravity, granular: float = 0.0) -> np.ndarray:
-    """[len(VIEWS), NUM_FRAMES, C] float32 features of one clip's stored states
-    (``granular``: its share of sand particles)."""
+def clip_views(x, F, t, ground, gravity) -> np.ndarray:
+    """[len(VIEWS), NUM_FRAMES, C] float32 features of one clip's stored states."""
     x = torch.as_tensor(np.asarray(x), dtype=torch.float32)
     F = torch.as_tensor(np.asarray(F), dtype=torch.float32)
     t = torch.as_tensor(np.asarray(t), dtype=torch.float64)
-    scene = MotionScene(
-        rest=x[0],
-        ground=float(ground),
-        gravity=tuple(float(v) for v in gravity),
-        granular=float(granular),
-    )
+    scene = MotionScene(rest=x[0], ground=float(ground), gravity=tuple(float(v) for v in gravity))
     out = []
     with torch.no_grad():
         for stride, first in VIEWS:
@@ -150,15 +144,9 @@ def _features(root: Path, data: dict[str, Any]) -> np.ndarray:
     k0 = 0 if done is None else min(done.shape[0], n)
     rows = [done[:k0]] if k0 else []
     for i in range(k0, n):
-        granular = 1.0 if data["specs"][i]["cls"] == "sand" else 0.0
         rows.append(
             clip_views(
-                data["x"][i],
-                data["F"][i],
-                data["t"][i],
-                data["ground"][i],
-                data["gravity"][i],
-                granular,
+                data["x"][i], data["F"][i], data["t"][i], data["ground"][i], data["gravity"][i]
             )[None]
         )
     feats = (
