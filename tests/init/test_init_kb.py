@@ -278,3 +278,24 @@ def test_extended_prompt_set_entries(matcher):
         if m.entry.name != r["entry"]
     ]
     assert not wrong, wrong
+
+
+@pytest.mark.parametrize(
+    ("prompt", "cls", "entry"),
+    [
+        # behind "out" a substance would read as scenery; after "like" it is what the
+        # thing behaves as (the duck was matched as an elastic animal figure before)
+        ("a duck creeps out slowly like syrup", "newtonian", "maple syrup"),
+        ("a bird spreads out like toothpaste", "non_newtonian", "toothpaste"),
+        ("a duck slides down like the butter", "plasticine", "butter"),
+        # a material named for the thing itself keeps its first-phrase bonus
+        ("A rubber duck creeps like syrup", "elastic", "rubber duck"),
+        ("a steel ball lands on the floor like a feather", "metal", "steel ball"),
+        # no "like": behind a preposition a substance is still the surroundings
+        ("a steel ball falls into a pool of honey", "metal", "steel ball"),
+    ],
+)
+def test_a_simile_names_what_a_shape_is_made_of(matcher, prompt, cls, entry):
+    m = matcher.match(prompt)
+    assert (m.cls, m.entry.name) == (cls, entry), m.matches
+    assert m.confidence >= 0.5 and m.warnings == []

@@ -103,6 +103,14 @@ FIRST_BONUS = 0.3
 MADE_OF_FACTOR = 1.3
 CONTEXT_FACTOR = 0.35
 """Multiplier of a match that names a container ("a glass of") or a surface ("onto the table")."""
+_SIMILE_WORDS = frozenset({"like"})
+_ARTICLES = frozenset({"a", "an", "the", "some"})
+"""A match right after one of these (an article between allowed) is a simile: "a duck creeps
+out slowly like syrup" says what the thing behaves as, which is what it is to be simulated
+as, wherever the simile stands (behind "out" it would otherwise read as scenery). It counts
+as an ordinary subject word, so a material the prompt names for the thing itself ("a
+rubber duck ... like syrup") keeps its first-phrase bonus and wins, while a shape or a
+depiction ("a duck", "a ball") gives way to it."""
 UNDERSTOOD_RULE = (
     "the kb names a class only when at least one word of the prompt is a material or object "
     "it knows (a name or alias), a class word or a behaviour cue (bounces, splashes, "
@@ -905,8 +913,15 @@ class KBMatcher:
                 scenery = any(t in _CONTEXT_WORDS for t in before)
             else:
                 scenery = any(t in _CONTEXT_WORDS for t in toks[subject_end : sp.start])
+            lead = toks[max(0, sp.start - 2) : sp.start]
+            simile = bool(lead) and (
+                lead[-1] in _SIMILE_WORDS
+                or (len(lead) == 2 and lead[0] in _SIMILE_WORDS and lead[1] in _ARTICLES)
+            )
             if made_of:
                 sp.factor = MADE_OF_FACTOR
+            elif simile:
+                sp.factor = 1.0
             elif container or scenery:
                 sp.factor = CONTEXT_FACTOR
             if subject_end is None and sp.factor >= 1.0:
