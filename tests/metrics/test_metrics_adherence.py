@@ -199,3 +199,40 @@ def test_examples_confusion_matrix(tmp_path):
     for i, n in enumerate(names):
         print(f"{n[:12]:<13} " + " ".join(f"{v:10.3f}" for v in M[i]))
     _assert_diagonal_dominant(M, names)
+
+
+def bounce_with_jiggle(a: float):
+    """``bounce()`` whose shape swings after the first landing: a squash-and-stretch of
+    strain ``a`` at 6 Hz (peak-to-peak 2a), volume-preserving to first order."""
+    out = []
+    base = bounce()["x"]
+    for i in range(T):
+        t = i * DT
+        e = a * math.sin(2 * math.pi * 6.0 * (t - 0.25)) if t > 0.25 else 0.0
+        c = base[i].mean(0)
+        out.append((base[i] - c) * [1 - e / 2, 1 - e / 2, 1 + e] + c)
+    return _traj(out)
+
+
+def test_an_unasked_jiggle_counts_only_when_a_person_would_see_it():
+    """A bounce asked for, with an oscillation it did not ask for: a strain of 1.2 % (2.4 %
+    peak to peak) is counted by the oscillation measure but leaves the score where a still
+    bounce has it; 5 % (10 % peak to peak) pulls it down; and a prompt that asks for the
+    wobble is judged from 1 % as before."""
+    from motionphysics.metrics.adherence import VISIBLE_SWING
+
+    prompt = "A rubber ball bounces on the floor."
+    still = motion_adherence(prompt, bounce())
+    small = motion_adherence(prompt, bounce_with_jiggle(0.012))
+    big = motion_adherence(prompt, bounce_with_jiggle(0.05))
+    assert 2 * 0.012 < VISIBLE_SWING < 2 * 0.05
+    assert small["measurements"]["osc_swings"] >= 3  # the 1 % measure sees it ...
+    assert small["measurements"]["osc_visible_swings"] == 0  # ... a person would not
+    assert small["score"] == pytest.approx(still["score"], abs=0.02)
+    assert big["measurements"]["osc_visible_swings"] >= 3
+    assert big["score"] < 0.8 * still["score"]
+    row = next(r for r in small["behaviours"] if r["name"] == "oscillate")
+    assert row["source"] == "not mentioned" and row["measure"] == "osc_visible_swings"
+    asked = motion_adherence("A rubber ball bounces and vibrates", bounce_with_jiggle(0.012))
+    row = next(r for r in asked["behaviours"] if r["name"] == "oscillate")
+    assert row["source"] == "prompt" and row["measure"] == "osc_swings" and row["score"] > 0.5

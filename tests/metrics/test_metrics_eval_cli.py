@@ -8,6 +8,7 @@ import math
 import shutil
 
 import numpy as np
+import pytest
 
 from motionphysics.cli import main
 
@@ -103,3 +104,27 @@ def test_compare_writes_grid_and_table(tiny_runs, tmp_path, capsys):
     )
     assert grid.shape[2] >= 2 * single.shape[2]
     assert main(["compare", str(tiny_runs["ball"]), "--out", str(out)]) == 2  # exists, no --force
+
+
+def test_eval_ignores_an_unasked_jiggle_too_small_to_see(tiny_runs, tmp_path):
+    """``motionphysics eval`` on two hand-written run directories of the same bounce: one
+    jiggles by a strain of 1.2 % after landing, one wobbles by 5 %. The unasked oscillation counts
+    against "bounces" only where it is visible (metrics.adherence.VISIBLE_SWING)."""
+    from tests.metrics.test_metrics_adherence import bounce, bounce_with_jiggle
+
+    scores = {}
+    for name, traj in (
+        ("still", bounce()),
+        ("jiggle", bounce_with_jiggle(0.012)),
+        ("wobble", bounce_with_jiggle(0.05)),
+    ):
+        run = tmp_path / name
+        run.mkdir()
+        np.savez(run / "trajectory.npz", x=traj["x"], t=traj["t"])
+        shutil.copy(tiny_runs["ball"] / "video.mp4", run / "video.mp4")
+        (run / "run.yaml").write_text("prompt: A rubber ball bounces on the floor.\n")
+        scores[name] = _eval(run)["motion_adherence"]
+    assert scores["jiggle"]["score"] == pytest.approx(scores["still"]["score"], abs=0.02)
+    assert scores["wobble"]["score"] < 0.8 * scores["still"]["score"]
+    (row,) = [r for r in scores["jiggle"]["behaviours"] if r["name"] == "oscillate"]
+    assert row["explain"].startswith("not asked to oscillate: 0 visible swings")
