@@ -169,20 +169,34 @@ class _BufferPool:
 _POOL = _BufferPool(cap=512 << 20)
 """Saved sources of recorded launches and their adjoints' scratch."""
 
+_REBINDS: dict = {}
+
+
+def _rebinds(device):
+    """The hooks' packed launches on ``device`` (``sim.launch``: packed once per call site,
+    re-bound to each substep's arrays; a hook launches 1-3 small kernels a substep, whose
+    ``wp.launch`` argument packing cost more than the kernels)."""
+    from motionphysics.sim.launch import Rebinds
+
+    wp = init_warp()
+    dev = wp.get_device(device)
+    rb = _REBINDS.get(dev.alias)
+    if rb is None:
+        rb = _REBINDS[dev.alias] = Rebinds(wp, dev)
+    return rb
+
 
 def _region_copy(src, dst, dim, src_base, dst_base, device) -> None:
     """``dst[t + dst_base] <- src[t + src_base]`` for t in the box ``dim``: a full grid's
     sub-box into a box-sized array (``src_base`` = the box's first node) or back."""
-    wp = init_warp()
+    init_warp()
     from motionphysics.sim import kernels as K
 
-    wp.launch(
+    _rebinds(device).launch(
         K._copy_region_vec3,
-        dim=tuple(dim[:2]),  # (i, j) rows, each looping over k
-        inputs=[src, src_base, dst_base, int(dim[2])],
-        outputs=[dst],
-        device=device,
-        record_tape=False,
+        tuple(dim[:2]),  # (i, j) rows, each looping over k
+        [src, src_base, dst_base, int(dim[2])],
+        [dst],
     )
 
 
@@ -214,13 +228,8 @@ def _launch(
     zero = wp.vec3i(0, 0, 0)
     if tape is None or not needs_grad:
         grid_inputs = [zero] if grid_offset is not None else []
-        wp.launch(
-            kernel,
-            dim=dim,
-            inputs=[*inputs, *grid_inputs, *targets],
-            outputs=[*targets, *extra_outputs],
-            device=device,
-            record_tape=False,
+        _rebinds(device).launch(
+            kernel, dim, [*inputs, *grid_inputs, *targets], [*targets, *extra_outputs]
         )
         return
     saved = []
@@ -233,14 +242,7 @@ def _launch(
             _region_copy(a, buf, dim, grid_offset, zero, device)
         saved.append(buf)
     inputs = [*inputs, grid_offset] if grid_offset is not None else list(inputs)
-    wp.launch(
-        kernel,
-        dim=dim,
-        inputs=[*inputs, *saved],
-        outputs=[*targets, *extra_outputs],
-        device=device,
-        record_tape=False,
-    )
+    _rebinds(device).launch(kernel, dim, [*inputs, *saved], [*targets, *extra_outputs])
     record = _LaunchAdjoint(
         tape, kernel, dim, inputs, targets, extra_outputs, device, grid_offset, saved
     )
@@ -316,16 +318,14 @@ class _LaunchAdjoint:
             adj_targets.append(a.grad)
         adj_inputs = [tape.get_adjoint(a) if isinstance(a, wp.array) else None for a in inputs]
         adj_extra = [tape.get_adjoint(a) for a in extra_outputs]
-        wp.launch(
+        _rebinds(self.device).launch(
             self.kernel,
-            dim=dim,
-            inputs=[*inputs, *saved],
-            outputs=[*targets, *extra_outputs],
-            adj_inputs=[*adj_inputs, *adj_saved],
-            adj_outputs=[*adj_targets, *adj_extra],
-            device=self.device,
+            dim,
+            [*inputs, *saved],
+            [*targets, *extra_outputs],
+            [*adj_inputs, *adj_saved],
+            [*adj_targets, *adj_extra],
             adjoint=True,
-            record_tape=False,
         )
         for buf in saved:
             _POOL.give(buf)

@@ -42,6 +42,7 @@ import numpy as np
 
 from motionphysics.runtime import init_warp
 from motionphysics.sim import kernels as _k
+from motionphysics.sim.launch import Rebinds
 from motionphysics.sim.model import Model
 from motionphysics.sim.state import State, copy_array
 
@@ -316,6 +317,9 @@ class Solver:
         self._rollout_buffers: dict | None = None  # the rollouts' tape buffers (Rollout._context)
         # the packed launches of untaped substeps
         self._replays = _Replays(wp, self.device, self.config.replay_launches)
+        # recorded substeps and their adjoints: packed once per call site, re-bound to each
+        # substep's own arrays (sim.launch)
+        self._rebinds = Rebinds(wp, self.device, self.config.replay_launches)
         self.classes = tuple(int(c) for c in np.unique(model.material_class.numpy()))
         """Material class ids present (one stress kernel launch each)."""
 
@@ -396,14 +400,7 @@ class Solver:
             )
             return
         self._chunked(
-            lambda c, start, n: wp.launch(
-                kernel,
-                dim=n,
-                inputs=make_inputs(c, start),
-                outputs=outputs,
-                device=dev,
-                record_tape=False,
-            )
+            lambda c, start, n: self._rebinds.launch(kernel, n, make_inputs(c, start), outputs)
         )
         per_chunk = [make_inputs(c, start) for c, (start, _n) in enumerate(self._ranges)]
         arrays = [
@@ -421,7 +418,6 @@ class Solver:
     def _chunks_backward(self, tape, kernel, per_chunk, outputs: list, shared) -> None:
         """The adjoint of :meth:`_launch_chunks`' two recorded chunk launches."""
         wp = self.wp
-        dev = self.model.device
         private: dict[tuple[int, int], Any] = {}
 
         def adj(c: int, start: int, n: int) -> None:
@@ -434,29 +430,12 @@ class Solver:
                     private[(c, i)] = g
                 adj_in.append(g)
             adj_out = [tape.get_adjoint(o) for o in outputs]
-            wp.launch(
-                kernel,
-                dim=n,
-                inputs=ins,
-                outputs=outputs,
-                adj_inputs=adj_in,
-                adj_outputs=adj_out,
-                device=dev,
-                adjoint=True,
-                record_tape=False,
-            )
+            self._rebinds.launch(kernel, n, ins, outputs, adj_in, adj_out, adjoint=True)
 
         self._chunked(adj)
         for (_c, i), g in private.items():
             total = per_chunk[0][i].grad
-            wp.launch(
-                _k._add_vec3_3d,
-                dim=total.shape,
-                inputs=[g],
-                outputs=[total],
-                device=dev,
-                record_tape=False,
-            )
+            self._rebinds.launch(_k._add_vec3_3d, total.shape, [g], [total])
 
     def _record_grid_update_adjoint(self, grid: Grid, mv, shape, wp_off) -> None:
         """Record ``kernels._grid_update_adjoint`` for the grid update just launched."""
@@ -466,13 +445,11 @@ class Solver:
         )
 
     def _grid_update_backward(self, grid: Grid, mv, shape, wp_off) -> None:
-        self.wp.launch(
+        self._rebinds.launch(
             _k._grid_update_adjoint,
-            dim=tuple(shape[:2]),  # (i, j) rows, each looping over k
-            inputs=[mv, self.chunks, wp_off, grid.velocity.grad],
-            outputs=[mv.grad],
-            device=self.model.device,
-            record_tape=False,
+            tuple(shape[:2]),  # (i, j) rows, each looping over k
+            [mv, self.chunks, wp_off, grid.velocity.grad],
+            [mv.grad],
         )
         # it consumed (zeroed) the node velocity adjoint on the region, the last in the
         # substep's backward to touch it
@@ -578,13 +555,11 @@ class Solver:
             # recorded again on the same region (the next iteration) is not zeroed again.
             custom = self._g2p_custom(state_in, grid, state_out)
             if not (custom and grid.clean_on(off, shape)):
-                wp.launch(
+                self._rebinds.launch(
                     _k._zero_region_vec3,
-                    dim=tuple(shape[:2]),  # (i, j) rows, each looping over k
-                    inputs=[wp_off, int(shape[2])],
-                    outputs=[grid.velocity.grad],
-                    device=m.device,
-                    record_tape=False,
+                    tuple(shape[:2]),  # (i, j) rows, each looping over k
+                    [wp_off, int(shape[2])],
+                    [grid.velocity.grad],
                 )
                 # (Warp's own G2P adjoint would not clear it: nothing is known then)
                 grid.clean = (off, shape) if custom else None
@@ -663,6 +638,8 @@ class Solver:
             if tape is None:
                 # (the same per-node expressions, launched over the (i, j) rows)
                 self._replays.launch(_k._grid_update_rows, shape[:2], *args)
+            elif hand_grid:  # its adjoint is recorded by hand just below
+                self._rebinds.launch(_k._grid_update, shape, *args)
             else:
                 wp.launch(
                     _k._grid_update,
@@ -670,7 +647,6 @@ class Solver:
                     inputs=args[0],
                     outputs=args[1],
                     device=m.device,
-                    record_tape=not hand_grid,
                 )
             if hand_grid:
                 self._record_grid_update_adjoint(grid, mv, shape, wp_off)
@@ -747,27 +723,18 @@ class Solver:
             return
         R = self._rotation(grid)
         self._chunked(
-            lambda c, start, n: wp.launch(
+            lambda c, start, n: self._rebinds.launch(
                 _k._stress_elastic,
-                dim=n,
-                inputs=[*self._elastic_args(state_in, dt, start), 1],
-                outputs=[*outputs, R],
-                device=dev,
-                record_tape=False,
+                n,
+                [*self._elastic_args(state_in, dt, start), 1],
+                [*outputs, R],
             )
         )
         self._record_elastic_stress(tape, state_in, state_out, affine, R, dt)
 
     def _launch_untaped(self, kernel, dim, inputs: list, outputs: list) -> None:
-        """``wp.launch`` that no tape records."""
-        self.wp.launch(
-            kernel,
-            dim=dim,
-            inputs=inputs,
-            outputs=outputs,
-            device=self.model.device,
-            record_tape=False,
-        )
+        """``wp.launch`` that no tape records (packed once per call site, re-bound)."""
+        self._rebinds.launch(kernel, dim, inputs, outputs)
 
     def _rotation(self, grid: Grid):
         """``grid.rotation``: where a recorded substep stores its elastic rotations."""
@@ -800,8 +767,6 @@ class Solver:
     def _elastic_stress_backward(
         self, tape, state_in: State, state_out: State, affine, R, dt: float
     ) -> None:
-        wp = self.wp
-        dev = self.model.device
         pr = self.model.params
         outputs = [state_out.F, state_out.ep, affine]
         grads = [state_in.C.grad, state_in.F.grad, state_in.ep.grad]
@@ -812,25 +777,18 @@ class Solver:
         def adj(c: int, start: int, n: int) -> None:
             ins = [*self._elastic_args(state_in, dt, start), R]
             if hand:  # the hand-written adjoint (every adjoint buffer present)
-                wp.launch(
-                    _k._stress_elastic_adjoint,
-                    dim=n,
-                    inputs=[*ins, *(o.grad for o in outputs)],
-                    outputs=grads,
-                    device=dev,
-                    record_tape=False,
+                self._rebinds.launch(
+                    _k._stress_elastic_adjoint, n, [*ins, *(o.grad for o in outputs)], grads
                 )
                 return
-            wp.launch(
+            self._rebinds.launch(
                 _k._stress_elastic_replay,
-                dim=n,
-                inputs=ins,
-                outputs=outputs,
-                adj_inputs=[tape.get_adjoint(a) for a in ins],
-                adj_outputs=[tape.get_adjoint(o) for o in outputs],
-                device=dev,
+                n,
+                ins,
+                outputs,
+                [tape.get_adjoint(a) for a in ins],
+                [tape.get_adjoint(o) for o in outputs],
                 adjoint=True,
-                record_tape=False,
             )
 
         self._chunked(adj)
@@ -844,6 +802,14 @@ class Solver:
         density = self.model.params["density"]
         needed = [state_in.x, state_in.v, affine, density, mv]
         custom = tape is not None and all(a.grad is not None for a in needed)
+        if custom:  # its adjoint is recorded by hand just below
+            self._chunked(
+                lambda c, start, n: self._rebinds.launch(
+                    _k._p2g, n, self._p2g_args(state_in, affine, wp_off, c, start), [mv]
+                )
+            )
+            self._record_p2g(tape, state_in, affine, mv, wp_off)
+            return
         self._chunked(
             lambda c, start, n: wp.launch(
                 _k._p2g,
@@ -851,11 +817,8 @@ class Solver:
                 inputs=self._p2g_args(state_in, affine, wp_off, c, start),
                 outputs=[mv],
                 device=dev,
-                record_tape=not custom,
             )
         )
-        if custom:
-            self._record_p2g(tape, state_in, affine, mv, wp_off)
 
     def _record_p2g(self, tape, state_in: State, affine, mv, wp_off) -> None:
         """Record P2G's hand-written adjoint (``_p2g_backward``) on ``tape``."""
@@ -866,18 +829,14 @@ class Solver:
         )
 
     def _p2g_backward(self, state_in: State, affine, mv, wp_off) -> None:
-        wp = self.wp
-        dev = self.model.device
         density = self.model.params["density"]
 
         def adj(c: int, start: int, n: int) -> None:
-            wp.launch(
+            self._rebinds.launch(
                 _k._p2g_adjoint,
-                dim=n,
-                inputs=[*self._p2g_args(state_in, affine, wp_off, c, start), mv.grad],
-                outputs=[state_in.x.grad, state_in.v.grad, affine.grad, density.grad],
-                device=dev,
-                record_tape=False,
+                n,
+                [*self._p2g_args(state_in, affine, wp_off, c, start), mv.grad],
+                [state_in.x.grad, state_in.v.grad, affine.grad, density.grad],
             )
 
         self._chunked(adj)
@@ -917,18 +876,22 @@ class Solver:
                 )
             )
             return
+        if not custom:  # Warp records its own adjoint
+            self._chunked(
+                lambda c, start, n: wp.launch(
+                    _k._g2p,
+                    dim=n,
+                    inputs=self._g2p_args(state_in, grid, dt, start),
+                    outputs=outputs,
+                    device=dev,
+                )
+            )
+            return
         self._chunked(
-            lambda c, start, n: wp.launch(
-                _k._g2p,
-                dim=n,
-                inputs=self._g2p_args(state_in, grid, dt, start),
-                outputs=outputs,
-                device=dev,
-                record_tape=not custom,
+            lambda c, start, n: self._rebinds.launch(
+                _k._g2p, n, self._g2p_args(state_in, grid, dt, start), outputs
             )
         )
-        if not custom:
-            return
         v_g2p = grid.v_g2p
         if v_g2p is None or v_g2p.shape[0] != m.particle_count:
             v_g2p = grid.v_g2p = wp.empty(m.particle_count, dtype=wp.vec3, device=dev)
@@ -968,7 +931,6 @@ class Solver:
         # region-sized private buffer (the particles' stencils lie in the region), reused,
         # then added at the offset: Warp's CPU atomics are plain read-modify-writes
         wp = self.wp
-        dev = self.model.device
         off = wp.vec3i(*offset)
         zero = wp.vec3i(0, 0, 0)
         private, poffs = [grid.velocity.grad], [zero]
@@ -977,10 +939,10 @@ class Solver:
             poffs.append(off)
 
         def adj(c: int, start: int, n: int) -> None:
-            wp.launch(
+            self._rebinds.launch(
                 _k._g2p_adjoint,
-                dim=n,
-                inputs=[
+                n,
+                [
                     *self._g2p_args(state_in, grid, dt, start),
                     v_g2p,
                     state_out.x.grad,
@@ -988,21 +950,17 @@ class Solver:
                     state_out.C.grad,
                     poffs[c],
                 ],
-                outputs=[state_in.x.grad, private[c]],
-                device=dev,
-                record_tape=False,
+                [state_in.x.grad, private[c]],
             )
 
         self._chunked(adj)
         if self.chunks > 1:
             for g in private[1:]:
-                wp.launch(
+                self._rebinds.launch(
                     _k._add_region_vec3,
-                    dim=tuple(g.shape[:2]),  # (i, j) rows, each looping over k
-                    inputs=[g, off],
-                    outputs=[grid.velocity.grad],
-                    device=dev,
-                    record_tape=False,
+                    tuple(g.shape[:2]),  # (i, j) rows, each looping over k
+                    [g, off],
+                    [grid.velocity.grad],
                 )
 
     def _private_grids(self, shape: tuple[int, ...]) -> list:
