@@ -638,8 +638,8 @@ class Solver:
             if tape is None:
                 # (the same per-node expressions, launched over the (i, j) rows)
                 self._replays.launch(_k._grid_update_rows, shape[:2], *args)
-            elif hand_grid:  # its adjoint is recorded by hand just below
-                self._rebinds.launch(_k._grid_update, shape, *args)
+            elif hand_grid:  # its adjoint is recorded by hand just below; by rows too
+                self._rebinds.launch(_k._grid_update_rows, shape[:2], *args)
             else:
                 wp.launch(
                     _k._grid_update,
