@@ -150,7 +150,7 @@ class Rebinds:
             elif kind == "none":
                 continue
             else:  # a scalar or a Warp vector / matrix value: re-packed when it changed
-                v = tuple(a) if kind == "vector" else a
+                v = bytes(a) if kind == "vector" else a
                 if v == last[i]:
                     continue
                 last[i] = v
@@ -214,7 +214,7 @@ class Rebinds:
         entry = _Packed(call, keep, names, adj_names, args, adj_args, kinds)
         for i, (a, k) in enumerate(zip(vals, kinds, strict=True)):
             # what was packed: an array's cached descriptor (the same object pack_arg used)
-            entry.last[i] = a.__ctype__() if k == "array" else tuple(a) if k == "vector" else a
+            entry.last[i] = a.__ctype__() if k == "array" else bytes(a) if k == "vector" else a
         with self._lock:
             if len(self._entries) >= self.MAX:
                 del self._entries[next(iter(self._entries))]

@@ -122,7 +122,7 @@ class _Replays:
             if t is array:
                 key.append(id(a))
             elif hasattr(t, "_length_"):  # a Warp vector or matrix (a ctypes array)
-                key.append(tuple(a))
+                key.append(bytes(a))  # by value (a C-level copy, not 3-9 getitems)
             else:  # a scalar
                 key.append(a)
         key = tuple(key)
