@@ -122,11 +122,11 @@ class Rebinds:
             self._rebind(entry, kernel, vals)
         entry.call()
 
-    def _fallback(self, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint) -> None:
-        kw = {}
+    def _warp(self, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, **kw):
+        """``wp.launch`` of these arguments on this device, never recorded on a tape."""
         if adjoint:
-            kw = {"adj_inputs": adj_inputs or [], "adj_outputs": adj_outputs or []}
-        self.wp.launch(
+            kw.update(adj_inputs=adj_inputs or [], adj_outputs=adj_outputs or [])
+        return self.wp.launch(
             kernel,
             dim=dim,
             inputs=inputs,
@@ -136,6 +136,9 @@ class Rebinds:
             record_tape=False,
             **kw,
         )
+
+    def _fallback(self, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint) -> None:
+        self._warp(kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint)
 
     def _rebind(self, entry: _Packed, kernel, vals: list) -> None:
         n = len(entry.names)
@@ -165,18 +168,8 @@ class Rebinds:
         """Pack the launch (Warp's own argument checks and conversions), keep it under
         ``key`` and return it (the caller runs it); None when Warp did not give a CPU
         launch to keep (then it has been launched here)."""
-        kw = {}
-        if adjoint:
-            kw = {"adj_inputs": adj_inputs or [], "adj_outputs": adj_outputs or []}
-        cmd = self.wp.launch(
-            kernel,
-            dim=dim,
-            inputs=inputs,
-            outputs=outputs,
-            device=self.device,
-            adjoint=adjoint,
-            record_cmd=True,
-            **kw,
+        cmd = self._warp(
+            kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, record_cmd=True
         )
         if not isinstance(cmd, self._ctx.Launch):
             self._fallback(kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint)
