@@ -191,6 +191,41 @@ def test_contrast_prompt_is_the_opposite_motion_with_the_same_subject(prompt, gr
         assert prompt_motion_group(neg)[0] == OPPOSITE[group]  # the contrast is a claim too
 
 
+@pytest.mark.parametrize(
+    ("prompt", "side", "negative"),
+    [
+        (
+            "A ring of coarse, rough gravel is dropped and stays a tall, steep heap",
+            "steep",
+            "A ring of coarse, rough gravel splashes and spreads",
+        ),
+        ("A lump of damp sand crumbles but stays a steep pile", "steep", None),
+        (
+            "A ring of fine, dry sand is dropped, collapses and spreads out flat",
+            "flat",
+            "A ring of fine, dry sand keeps its shape",
+        ),
+        # "a heap", "a mound", "a pile": what every crumbling pile does, neither side
+        ("A sand castle crumbles into a heap", None, "A sand castle keeps its shape"),
+        ("a ring disintegrates into a pile", None, "a ring keeps its shape"),
+        ("A sandcastle falls apart into a mound", None, None),
+        ("a block of sand crumbles and settles in a heap", None, None),
+    ],
+)
+def test_a_pile_asked_to_stay_steep_is_contrasted_with_a_flat_spread(prompt, side, negative):
+    """Every pile "crumbles"; against "keeps its shape" a prompt asking for a tall, steep
+    heap was pushed to collapse like one asking for a flat spread. Its opposite is a flat
+    spread; a flat spread's, and a plain heap's, is still keeping its shape."""
+    from motionphysics.language.captions import contrast_prompt, heap_side, prompt_motion_group
+
+    assert prompt_motion_group(prompt)[0] == "crumbles"
+    assert heap_side(prompt) == side
+    neg = contrast_prompt(prompt)
+    if negative is not None:
+        assert neg == negative
+    assert prompt_motion_group(neg)[0] == ("splashes" if side == "steep" else "keeps_shape")
+
+
 def test_opposites_pair_up_the_groups():
     from motionphysics.language.captions import OPPOSITE
 

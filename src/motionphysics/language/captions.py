@@ -38,6 +38,7 @@ __all__ = [
     "contrast_prompt",
     "firmness",
     "group_prompt",
+    "heap_side",
     "motion_group",
     "object_noun",
     "prompt_motion_group",
@@ -627,11 +628,75 @@ def prompt_motion_reading(
     return found
 
 
+HEAP_SIDES: dict[str, tuple[str, ...]] = {
+    "steep": (
+        "stays a tall, steep heap",
+        "keeps a steep slope",
+        "stands tall and steep",
+        "holds a steep cone",
+    ),
+    "flat": (
+        "collapses and spreads out flat",
+        "spreads into a low, flat layer",
+        "slumps flat",
+        "spreads thin across the floor",
+        "spreads into a low mound",
+    ),
+    "neither": (
+        "crumbles into a heap",
+        "settles in a heap",
+        "falls apart into a mound",
+        "collapses into a pile",
+        "disintegrates into a pile",
+    ),
+}
+"""How a pile of grains can be asked to settle: a tall, steep heap, a flat spread, or
+neither (just "a heap", "a mound": the words every crumbling pile gets). Every pile
+"crumbles" (one motion group), so the group cannot say which; each clause of the prompt is
+read against these phrasings (:func:`heap_side`)."""
+
+HEAP_MARGIN = 0.05
+"""A clause reads as "steep" or "flat" only when it is this much closer (cosine, MiniLM)
+to that side's phrasings than to both others'."""
+
+
+def heap_side(prompt: str) -> str | None:
+    """``"steep"``, ``"flat"`` or None: which way a prompt asks a pile to settle, from the
+    clause that reads most clearly as one side of :data:`HEAP_SIDES`; None when every
+    clause is nearest to "neither", below MIN_MOTION_SIMILARITY, or within
+    :data:`HEAP_MARGIN` of another side."""
+    clauses = prompt_clauses(prompt)
+    if not clauses:
+        return None
+    anchors = [(side, p) for side, ps in HEAP_SIDES.items() for p in ps]
+    emb = _sentence_embeddings(clauses + [p for _, p in anchors])
+    k = len(clauses)
+    found, gap = None, HEAP_MARGIN
+    for row in (emb[:k] @ emb[k:].T).tolist():
+        best = dict.fromkeys(HEAP_SIDES, -1.0)
+        for (side, _), v in zip(anchors, row, strict=True):
+            best[side] = max(best[side], v)
+        for side in ("steep", "flat"):
+            lead = best[side] - max(v for o, v in best.items() if o != side)
+            if best[side] >= MIN_MOTION_SIMILARITY and lead >= gap:
+                found, gap = side, lead
+    return found
+
+
 def contrast_prompt(prompt: str) -> str:
     """A description of the opposite motion with the prompt's subject: "A stiff ring
     bounces high" -> "A stiff ring squashes and stays flat". "" when the prompt makes no
-    motion claim (:func:`prompt_motion_group`) or claims a wobble (:data:`OPPOSITE`)."""
+    motion claim (:func:`prompt_motion_group`) or claims a wobble (:data:`OPPOSITE`).
+
+    A pile that crumbles is contrasted with keeping its shape, unless the prompt asks it to
+    stay a tall, steep heap (:func:`heap_side`): then the opposite is a flat spread
+    ("splashes"). Against "keeps its shape" every sand prompt pushed the friction angle
+    down, "coarse gravel stays a tall, steep heap" as much as "fine sand spreads out flat"
+    (BENCHMARKS.md, "The embedded motion prior")."""
     group, _ = prompt_motion_group(prompt)
     if group is None or OPPOSITE[group] is None:
         return ""
-    return f"{_split(prompt)[0]} {TRAIN[OPPOSITE[group]][0]}"
+    opposite = OPPOSITE[group]
+    if group == "crumbles" and heap_side(prompt) == "steep":
+        opposite = "splashes"
+    return f"{_split(prompt)[0]} {TRAIN[opposite][0]}"
