@@ -638,8 +638,11 @@ class Solver:
             if tape is None:
                 # (the same per-node expressions, launched over the (i, j) rows)
                 self._replays.launch(_k._grid_update_rows, shape[:2], *args)
-            elif hand_grid:  # its adjoint is recorded by hand just below; by rows too
-                self._rebinds.launch(_k._grid_update_rows, shape[:2], *args)
+            elif hand_grid:  # its adjoint is recorded by hand just below
+                if self.device.is_cpu:  # by rows, as untaped
+                    self._rebinds.launch(_k._grid_update_rows, shape[:2], *args)
+                else:  # a thread per node
+                    self._rebinds.launch(_k._grid_update, shape, *args)
             else:
                 wp.launch(
                     _k._grid_update,
