@@ -189,7 +189,6 @@ def _rebinds(device):
 def _region_copy(src, dst, dim, src_base, dst_base, device) -> None:
     """``dst[t + dst_base] <- src[t + src_base]`` for t in the box ``dim``: a full grid's
     sub-box into a box-sized array (``src_base`` = the box's first node) or back."""
-    init_warp()
     from motionphysics.sim import kernels as K
 
     _rebinds(device).launch(
