@@ -97,25 +97,30 @@ class Rebinds:
         array = self._array
         sig: list[Any] = [kernel, dim if isinstance(dim, int) else tuple(dim), adjoint]
         sig.append(threading.get_ident())  # two chunks' threads never share a packed struct
+        kinds = []  # how each value is re-bound (:meth:`_rebind`)
         for a in vals:
             t = type(a)
             if t is array:
                 sig.append((a.dtype, a.shape, a.strides))
+                kinds.append("array")
             elif a is None:
                 sig.append(None)
-            elif isinstance(a, _SCALARS):
-                sig.append(t)
+                kinds.append("none")
             elif isinstance(a, ctypes.Array):  # a Warp vector / matrix value
                 sig.append(t)
-            elif t is tuple:  # a vector given as a tuple of numbers
-                sig.append((tuple, len(a)))
+                kinds.append("vector")
+            elif isinstance(a, _SCALARS) or t is tuple:  # compared by value
+                sig.append((tuple, len(a)) if t is tuple else t)
+                kinds.append("scalar")
             else:
                 self._fallback(kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint)
                 return
         key = tuple(sig)
         entry = self._entries.get(key)
         if entry is None:
-            entry = self._pack(key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint)
+            entry = self._pack(
+                key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, vals, kinds
+            )
             if entry is None:
                 return  # packed and launched by the fallback
         else:
@@ -164,10 +169,13 @@ class Rebinds:
             else:
                 setattr(entry.adj_args, entry.adj_names[i - n], c)
 
-    def _pack(self, key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint):
+    def _pack(
+        self, key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, vals, kinds
+    ):
         """Pack the launch (Warp's own argument checks and conversions), keep it under
         ``key`` and return it (the caller runs it); None when Warp did not give a CPU
-        launch to keep (then it has been launched here)."""
+        launch to keep (then it has been launched here). ``vals``: the inputs, outputs and
+        adjoints in order; ``kinds``: how :meth:`launch` classified each."""
         cmd = self._warp(
             kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, record_cmd=True
         )
@@ -190,20 +198,7 @@ class Rebinds:
             def call() -> None:
                 hook(b, x)
 
-        vals = [*inputs, *outputs]
-        if adjoint:
-            vals += [*(adj_inputs or []), *(adj_outputs or [])]
-        kinds = []
-        for a in vals:
-            if type(a) is self._array:
-                kinds.append("array")
-            elif a is None:
-                kinds.append("none")
-            elif isinstance(a, ctypes.Array):
-                kinds.append("vector")
-            else:  # a number or a tuple of numbers, compared by value
-                kinds.append("scalar")
-        keep = (cmd.bounds, args, adj_args, cmd.module_exec)  # alive as long as the entry
+        keep = (cmd.bounds, cmd.module_exec)  # alive as long as the entry
         entry = _Packed(call, keep, names, adj_names, args, adj_args, kinds)
         for i, (a, k) in enumerate(zip(vals, kinds, strict=True)):
             # what was packed: an array's cached descriptor (the same object pack_arg used)
