@@ -40,6 +40,17 @@ __all__ = ["Rebinds"]
 _SCALARS = (int, float, bool, np.integer, np.floating)
 
 
+def _kind(sig) -> str:
+    """How an argument with signature entry ``sig`` (:meth:`Rebinds.launch`) is re-bound:
+    "array" (its descriptor), "none", "vector" (a Warp vector / matrix value, by its bytes)
+    or "scalar" (a number or a tuple of numbers, by value)."""
+    if sig is None:
+        return "none"
+    if isinstance(sig, tuple):
+        return "scalar" if sig[0] is tuple else "array"
+    return "vector" if issubclass(sig, ctypes.Array) else "scalar"
+
+
 class _Packed:
     """One packed launch: the argument structs, their field names, what was written last."""
 
@@ -97,21 +108,18 @@ class Rebinds:
         array = self._array
         sig: list[Any] = [kernel, dim if isinstance(dim, int) else tuple(dim), adjoint]
         sig.append(threading.get_ident())  # two chunks' threads never share a packed struct
-        kinds = []  # how each value is re-bound (:meth:`_rebind`)
         for a in vals:
             t = type(a)
             if t is array:
                 sig.append((a.dtype, a.shape, a.strides))
-                kinds.append("array")
             elif a is None:
                 sig.append(None)
-                kinds.append("none")
             elif isinstance(a, ctypes.Array):  # a Warp vector / matrix value
                 sig.append(t)
-                kinds.append("vector")
-            elif isinstance(a, _SCALARS) or t is tuple:  # compared by value
-                sig.append((tuple, len(a)) if t is tuple else t)
-                kinds.append("scalar")
+            elif isinstance(a, _SCALARS):
+                sig.append(t)
+            elif t is tuple:  # a vector given as a tuple of numbers
+                sig.append((tuple, len(a)))
             else:
                 self._fallback(kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint)
                 return
@@ -119,7 +127,7 @@ class Rebinds:
         entry = self._entries.get(key)
         if entry is None:
             entry = self._pack(
-                key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, vals, kinds
+                key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, vals
             )
             if entry is None:
                 return  # packed and launched by the fallback
@@ -169,13 +177,12 @@ class Rebinds:
             else:
                 setattr(entry.adj_args, entry.adj_names[i - n], c)
 
-    def _pack(
-        self, key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, vals, kinds
-    ):
+    def _pack(self, key, kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, vals):
         """Pack the launch (Warp's own argument checks and conversions), keep it under
         ``key`` and return it (the caller runs it); None when Warp did not give a CPU
         launch to keep (then it has been launched here). ``vals``: the inputs, outputs and
-        adjoints in order; ``kinds``: how :meth:`launch` classified each."""
+        adjoints in order, whose signature ends ``key`` (how each is re-bound follows from
+        it: no second classification)."""
         cmd = self._warp(
             kernel, dim, inputs, outputs, adj_inputs, adj_outputs, adjoint, record_cmd=True
         )
@@ -198,6 +205,7 @@ class Rebinds:
             def call() -> None:
                 hook(b, x)
 
+        kinds = [_kind(k) for k in key[len(key) - len(vals) :]]
         keep = (cmd.bounds, cmd.module_exec)  # alive as long as the entry
         entry = _Packed(call, keep, names, adj_names, args, adj_args, kinds)
         for i, (a, k) in enumerate(zip(vals, kinds, strict=True)):
